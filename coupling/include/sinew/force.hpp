@@ -1,0 +1,61 @@
+// The interface every particle force implements.
+//
+// A force acts on the full particle array: free particles, soft-bound particles and hard-bound rows
+// alike. Forces on hard-bound rows reach the parents through W^T (Sifakis et al. 2007, eq. 1-3);
+// the integrator does that, a force never needs to know which rows are bound.
+//
+// Elastic forces are explicit in the Newmark step (section 3.3); their differentials serve tests,
+// stability estimates and later implicit solvers. Damping is linear in v (f = D(x) v, D symmetric
+// negative semi-definite) and is implicit in both velocity solves.
+#pragma once
+
+#include "sinew/types.hpp"
+
+#include <string_view>
+
+namespace sinew {
+
+class Force {
+ public:
+  virtual ~Force() = default;
+
+  /// Short name used in error messages and timings, e.g. "edge springs".
+  virtual std::string_view name() const = 0;
+
+  /// Throws sinew::Error naming the bad item if any index is outside [0, particle_count) or any
+  /// element is degenerate. Called once when the force joins a system.
+  virtual void validate(Index particle_count) const = 0;
+
+  /// Caches position-dependent data (rotations, directions, gradients) at positions x (3 x N).
+  /// Every call below except potential_energy and add_elastic_forces uses the cached state.
+  virtual void update_position_state(const Vectors3& x) = 0;
+
+  /// Elastic potential energy at x (3 x N).
+  virtual double potential_energy(const Vectors3& x) const = 0;
+
+  /// f += f_el(x), with f_el = -dPsi/dx. x and f are 3 x N.
+  virtual void add_elastic_forces(const Vectors3& x, Vectors3& f) const = 0;
+
+  /// df += (d f_el / dx) dx at the cached state. dx and df are 3 x N.
+  virtual void add_elastic_differentials(const Vectors3& dx, Vectors3& df) const = 0;
+
+  /// f += D v at the cached state; D symmetric negative semi-definite. v and f are 3 x N.
+  virtual void add_damping_forces(const Vectors3& v, Vectors3& f) const { (void)v, (void)f; }
+
+  /// diag(i) += -D_ii at the cached state, the damping's contribution to the diagonal of the
+  /// implicit system (a scalar per particle: a third of the trace of its 3x3 diagonal block).
+  /// Used only by the Jacobi preconditioner.
+  virtual void add_damping_diagonal(VectorXd& diag) const { (void)diag; }
+
+  /// True when add_damping_forces adds anything; a scene whose forces all return false and that
+  /// has no binding springs runs no linear solve at all.
+  virtual bool has_damping() const { return false; }
+
+  /// Largest step for which the explicit treatment of this elastic force stays stable, from the
+  /// stiffest element and the lightest particle it touches (masses m, infinite for kinematic or
+  /// zero for hard-bound rows, in which case effective masses m_eff are used). Returns +inf when
+  /// the force imposes no restriction.
+  virtual double stable_dt(const VectorXd& m_eff) const { (void)m_eff; return kInfinity; }
+};
+
+}  // namespace sinew
