@@ -1,1 +1,576 @@
-// placeholder
+#include "newmark.hpp"
+
+#include <algorithm>
+#include <chrono>
+
+namespace sinew {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+double dot(const GeneralizedVector& a, const GeneralizedVector& b) {
+  return a.particles.cwiseProduct(b.particles).sum() + a.rigid.cwiseProduct(b.rigid).sum();
+}
+
+}  // namespace
+
+void Newmark::allocate(const System& s) {
+  m_n = s.m_particles.size();
+  m_r = s.m_bodies.size();
+  const Index n = m_n, r = m_r;
+  m_dof_mass.setZero(n);
+  m_dynamic_mask.setZero(n);
+  for (Index i = 0; i < n; ++i) {
+    if (!is_dynamic(s.m_particles.kind[i])) continue;
+    m_dof_mass[i] = s.m_particles.mass[i];
+    m_dynamic_mask[i] = 1.0;
+  }
+  m_dynamic_body.assign(static_cast<std::size_t>(r), 0);
+  for (Index b = 0; b < r; ++b) m_dynamic_body[b] = s.m_bodies.kinematic[b] ? 0 : 1;
+  for (Vectors3* a : {&m_x_n, &m_v_n, &m_x_np1, &m_v_tilde_n, &m_v_half, &m_f, &m_g, &m_tmp_v, &m_apply_f}) a->setZero(3, n);
+  m_wrench.setZero(6, r);
+  m_apply_wrench.setZero(6, r);
+  for (Vectors3* a : {&m_body_x_n, &m_body_v_n, &m_body_w_n, &m_body_L_n, &m_body_x_np1}) a->setZero(3, r);
+  m_body_q_n.assign(static_cast<std::size_t>(r), Quat::Identity());
+  m_body_q_np1 = m_body_q_n;
+  m_body_I.assign(static_cast<std::size_t>(r), Mat3::Zero());
+  m_body_preconditioner.assign(static_cast<std::size_t>(r), Eigen::Matrix<double, 6, 6>::Zero());
+  m_diag.setZero(n);
+  m_inverse_diag.setZero(n);
+  for (GeneralizedVector* g : {&m_c, &m_y, &m_r_vec, &m_z, &m_p, &m_q}) g->resize(n, r);
+  m_constraints.reserve(static_cast<std::size_t>(n));
+  m_has_damping = false;
+  for (const auto& f : s.m_forces) m_has_damping = m_has_damping || f->has_damping();
+  m_allocated = true;
+}
+
+// Section 3.3, steps 1-5. Positions and velocities in s are at t^n on entry and t^{n+1} on exit.
+StepStats Newmark::step(System& s, double dt) {
+  if (!m_allocated) allocate(s);
+  const auto start = Clock::now();
+  StepStats stats;
+  stats.substeps = 1;
+  stats.dt = dt;
+  save_state(s);
+
+  auto t = Clock::now();
+  implicit_half_velocity(s, dt, stats);
+  check_finite(s, "step 1 (implicit half velocity)");
+  stats.ms.implicit_half_velocity = ms_since(t);
+
+  t = Clock::now();
+  advance_positions(s, dt);
+  check_finite(s, "step 2 (advance positions)");
+  stats.ms.advance_positions = ms_since(t);
+
+  t = Clock::now();
+  process_collisions(s, dt);
+  check_finite(s, "step 3 (process collisions)");
+  stats.ms.process_collisions = ms_since(t);
+
+  t = Clock::now();
+  backward_euler_velocity(s, dt, stats);
+  check_finite(s, "step 4 (backward Euler velocity)");
+  stats.ms.backward_euler_velocity = ms_since(t);
+
+  t = Clock::now();
+  extrapolate_velocity(s);
+  check_finite(s, "step 5 (extrapolate velocity)");
+  stats.ms.extrapolate_velocity = ms_since(t);
+
+  stats.ms.total = ms_since(start);
+  ++m_step_count;
+  return stats;
+}
+
+void Newmark::save_state(System& s) {
+  // Bound rows are derived state: recompute them from parents that the caller (or a rigid solver
+  // writing into the rigid-body particles) may have moved since the last step.
+  s.clamp_bound_rows();
+  m_x_n = s.m_particles.x;
+  m_v_n = s.m_particles.v;
+  auto& bodies = s.m_bodies;
+  m_body_x_n = bodies.x;
+  m_body_v_n = bodies.v;
+  m_body_w_n = bodies.w;
+  for (Index b = 0; b < m_r; ++b) {
+    m_body_q_n[b] = bodies.q[b];
+    m_body_L_n.col(b) = m_dynamic_body[b] ? bodies.angular_momentum(b) : Vec3::Zero();
+  }
+}
+
+void Newmark::update_body_inertias(const System& s) {
+  for (Index b = 0; b < m_r; ++b) m_body_I[b] = s.m_bodies.world_inertia(b);
+}
+
+// Step 1 (eq. 8): (M + dt/2 D + dt^2/4 K) v~^{n+1/2} = M v^n + dt/2 (F_el(x^n) + F_ext - K x^n),
+// implicit in all damping and in the binding springs, explicit in the other elastic forces.
+void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
+  const double h = 0.5 * dt;
+  auto t = Clock::now();
+  update_body_inertias(s);
+  for (auto& f : s.m_forces) f->update_position_state(s.m_particles.x);
+  compute_forces(s, s.m_particles.x);
+  build_rhs(s, h, m_v_n, m_body_v_n, m_body_L_n);
+  m_y.particles = m_v_n;
+  m_y.rigid.topRows<3>() = m_body_v_n;
+  m_y.rigid.bottomRows<3>() = m_body_w_n;
+  m_constraints.clear();  // collisions are inactive in the first solve
+  stats.ms.forces += ms_since(t);
+
+  t = Clock::now();
+  const bool linear_solve = m_has_damping || s.m_springs.size() > 0;
+  const SolveResult result = solve(s, h, h, linear_solve);
+  stats.ms.cg += ms_since(t);
+  stats.linear_solve = linear_solve;
+  stats.cg_iterations_step1 += result.iterations;
+  stats.cg_residual = std::max(stats.cg_residual, result.residual);
+  stats.cg_converged = stats.cg_converged && result.converged;
+
+  m_v_half = m_y.particles;
+  s.m_particles.v = m_y.particles;
+  s.m_bodies.v = m_y.rigid.topRows<3>();
+  s.m_bodies.w = m_y.rigid.bottomRows<3>();
+}
+
+// Step 2: x~^{n+1} = x^n + dt v~^{n+1/2}; rigid frames x_c += dt v_c, q = q(dt w^{n+1/2}) q^n
+// (section 5, step 3). Velocities return to v^n, which step 3 turns into v~^n.
+void Newmark::advance_positions(System& s, double dt) {
+  auto& p = s.m_particles;
+  for (Index i = 0; i < m_n; ++i)
+    if (is_dynamic(p.kind[i]) || p.kind[i] == ParticleKind::kinematic) p.x.col(i) = m_x_n.col(i) + dt * m_v_half.col(i);
+  auto& bodies = s.m_bodies;
+  const bool gyroscopic = s.m_step_settings.gyroscopic_correction;
+  for (Index b = 0; b < m_r; ++b) {
+    Vec3 w = bodies.w.col(b);
+    if (gyroscopic && m_dynamic_body[b]) {
+      // w(t) = I(t)^-1 L drifts even without torque when I0 is not isotropic: dw/dt = I^-1 (L x w).
+      // Rotating with the midpoint value keeps the orientation update second order.
+      const Vec3 L = m_body_I[b] * w;
+      w += 0.5 * dt * (m_body_I[b].inverse() * L.cross(w));
+    }
+    bodies.x.col(b) = m_body_x_n.col(b) + dt * bodies.v.col(b);
+    bodies.q[b] = (rotation_from_vector(dt * w) * m_body_q_n[b]).normalized();
+  }
+  s.m_hard.update_rigid_offsets(bodies);
+  s.m_hard.clamp_positions(p.x, bodies.x);
+  p.v = m_v_n;
+  bodies.v = m_body_v_n;
+  bodies.w = m_body_w_n;
+  s.m_hard.clamp_velocities(p.v, bodies.v, bodies.w);
+}
+
+// Step 3: (x~^{n+1}, v^n) -> (x^{n+1}, v~^n). Deformables only (section 5, step 4): the hook sees
+// free and soft-bound particles; synchronized soft particles start on their targets and whatever
+// drift the hook gives them is pushed back to the targets' parents.
+void Newmark::process_collisions(System& s, double dt) {
+  synchronize(s, true, true);
+  m_constraints.clear();
+  if (s.m_collision_hook) {
+    CollisionContext context;
+    context.time = s.m_time;
+    context.dt = dt;
+    context.x_n = &m_x_n;
+    context.x = &s.m_particles.x;
+    context.v = &s.m_particles.v;
+    context.particles = &s.m_particles;
+    context.bodies = &s.m_bodies;
+    context.constraints = &m_constraints;
+    s.m_collision_hook(context);
+    for (const CollisionConstraint& c : m_constraints)
+      if (c.particle < 0 || c.particle >= m_n || !is_dynamic(s.m_particles.kind[c.particle]))
+        fail("collision hook: constraint on particle ", c.particle, ", which is not a free or soft-spring particle");
+    push_synchronized_drift(s);
+  }
+  s.m_hard.clamp_positions(s.m_particles.x, s.m_bodies.x);
+  s.m_hard.clamp_velocities(s.m_particles.v, s.m_bodies.v, s.m_bodies.w);
+  synchronize(s, true, true);
+  m_x_np1 = s.m_particles.x;
+  m_body_x_np1 = s.m_bodies.x;
+  for (Index b = 0; b < m_r; ++b) m_body_q_np1[b] = s.m_bodies.q[b];
+}
+
+// Step 4: (M + dt/2 D) v^{n+1/2} = M v~^n + dt/2 (F_el(x^{n+1/2}) + F_ext - K x^{n+1/2}), with the
+// collision constraints of step 3 projected. x^{n+1/2} is what keeps the stiff binding springs
+// stable (section 3.3); BindingSpringStep4 selects the alternatives.
+void Newmark::backward_euler_velocity(System& s, double dt, StepStats& stats) {
+  const double h = 0.5 * dt;
+  auto t = Clock::now();
+  auto& p = s.m_particles;
+  auto& bodies = s.m_bodies;
+  m_v_tilde_n = p.v;
+  for (Index i = 0; i < m_n; ++i) p.x.col(i) = 0.5 * (m_x_n.col(i) + m_x_np1.col(i));
+  for (Index b = 0; b < m_r; ++b) {
+    bodies.x.col(b) = 0.5 * (m_body_x_n.col(b) + m_body_x_np1.col(b));
+    bodies.q[b] = m_body_q_n[b].slerp(0.5, m_body_q_np1[b]).normalized();
+  }
+  s.m_hard.update_rigid_offsets(bodies);
+  s.m_hard.clamp_positions(p.x, bodies.x);
+  synchronize(s, true, false);
+  update_body_inertias(s);
+  for (auto& f : s.m_forces) f->update_position_state(p.x);
+
+  const BindingSpringStep4 mode = s.m_step_settings.binding_springs_in_step4;
+  const Vec3 mapped = compute_forces(s, mode == BindingSpringStep4::explicit_end_of_step ? m_x_np1 : p.x);
+  stats.mapped_impulse += dt * mapped;
+  // Rigid rows start from v~^n = (v_c, L^n): L is the momentum-like state, so w is recomputed with
+  // the inertia at the half-step orientation.
+  build_rhs(s, h, m_v_tilde_n, bodies.v, m_body_L_n);
+  m_y.particles = m_v_tilde_n;
+  for (Index b = 0; b < m_r; ++b) {
+    m_y.rigid.col(b).head<3>() = bodies.v.col(b);
+    m_y.rigid.col(b).tail<3>() = m_dynamic_body[b] ? Vec3(bodies.world_inverse_inertia(b) * m_body_L_n.col(b)) : Vec3(bodies.w.col(b));
+  }
+  for (const CollisionConstraint& c : m_constraints) {
+    auto y = m_y.particles.col(c.particle);
+    y += (c.normal_velocity - c.normal.dot(y)) * c.normal;
+  }
+  stats.ms.forces += ms_since(t);
+
+  t = Clock::now();
+  const double beta = mode == BindingSpringStep4::implicit_half_step ? h : 0.0;
+  const bool linear_solve = m_has_damping || (beta > 0.0 && s.m_springs.size() > 0);
+  const SolveResult result = solve(s, h, beta, linear_solve);
+  stats.ms.cg += ms_since(t);
+  stats.cg_iterations_step4 += result.iterations;
+  stats.cg_residual = std::max(stats.cg_residual, result.residual);
+  stats.cg_converged = stats.cg_converged && result.converged;
+  m_v_half = m_y.particles;
+
+  // Back to x^{n+1}; the half-step twists stay in m_y.rigid for step 5.
+  p.x = m_x_np1;
+  bodies.x = m_body_x_np1;
+  for (Index b = 0; b < m_r; ++b) bodies.q[b] = m_body_q_np1[b];
+}
+
+// Step 5: v^{n+1} = 2 v^{n+1/2} - v~^n. Rigid bodies extrapolate momentum, L^{n+1} = 2 L^{n+1/2} - L^n,
+// and take w^{n+1} = I(q^{n+1})^-1 L^{n+1}, so a torque-free body keeps L exactly.
+void Newmark::extrapolate_velocity(System& s) {
+  auto& p = s.m_particles;
+  for (Index i = 0; i < m_n; ++i)
+    if (is_dynamic(p.kind[i])) p.v.col(i) = 2.0 * m_v_half.col(i) - m_v_tilde_n.col(i);
+  auto& bodies = s.m_bodies;
+  for (Index b = 0; b < m_r; ++b) {
+    if (!m_dynamic_body[b]) continue;
+    const Vec3 L_half = m_body_I[b] * m_y.rigid.col(b).tail<3>();
+    const Vec3 L = 2.0 * L_half - m_body_L_n.col(b);
+    bodies.v.col(b) = 2.0 * m_y.rigid.col(b).head<3>() - bodies.v.col(b);
+    bodies.w.col(b) = bodies.world_inverse_inertia(b) * L;
+  }
+  s.m_hard.update_rigid_offsets(bodies);
+  s.m_hard.clamp_velocities(p.v, bodies.v, bodies.w);
+  synchronize(s, true, true);
+}
+
+// ---- forces and right-hand side ---------------------------------------------------------------
+
+// The order matters (see the reference notes on the authors' code): elastic and external forces
+// are distributed to parents (W^T), then mapped onto soft particles (section 3: f_s = m_s a_target),
+// and only then are the binding springs added and distributed, so no soft particle inherits its own
+// spring's pull and damping is never mapped.
+Vec3 Newmark::compute_forces(System& s, const Vectors3& x_springs) {
+  auto& p = s.m_particles;
+  auto& bodies = s.m_bodies;
+  m_f.setZero();
+  m_wrench.setZero();
+  for (const auto& f : s.m_forces) f->add_elastic_forces(p.x, m_f);
+  gather_synchronized(s, m_f);
+  s.m_hard.distribute(m_f, m_wrench);
+
+  const Vec3& g = s.m_settings.gravity;
+  for (Index i = 0; i < m_n; ++i)
+    if (p.kind[i] == ParticleKind::free) m_f.col(i) += p.mass[i] * g;
+  for (Index b = 0; b < m_r; ++b)
+    if (m_dynamic_body[b] && bodies.gravity[b]) m_wrench.col(b).head<3>() += bodies.mass[b] * g;
+
+  // Parent accelerations a = M^-1 F (zero for kinematic parents, 1/inf = 0), read at the target.
+  Vec3 mapped_total = Vec3::Zero();
+  const SoftBindings& soft = s.m_soft;
+  for (Index k = 0; k < soft.size(); ++k) {
+    if (soft.coupling[k] != SoftCoupling::spring) continue;
+    const Index target = soft.target[k];
+    Vec3 a;
+    const Index code = s.m_hard.binding_of(target);
+    if (code == HardBindings::unbound) {
+      a = p.kind[target] == ParticleKind::kinematic ? Vec3::Zero() : Vec3(m_f.col(target) / p.mass[target]);
+    } else if (code >= 0) {
+      a.setZero();
+      const auto parents = s.m_hard.linear_parents(code);
+      const auto weights = s.m_hard.linear_weights(code);
+      for (std::size_t j = 0; j < parents.size(); ++j) a += (weights[j] / p.mass[parents[j]]) * m_f.col(parents[j]);
+    } else {
+      const Index r = -code - 1, b = s.m_hard.rigid_body(r);
+      if (!m_dynamic_body[b]) {
+        a.setZero();
+      } else {
+        const Vec3 alpha = bodies.world_inverse_inertia(b) * m_wrench.col(b).tail<3>();
+        a = m_wrench.col(b).head<3>() / bodies.mass[b] + alpha.cross(s.m_hard.rigid_offset_world(r));
+      }
+    }
+    const Vec3 f_mapped = p.mass[soft.particle[k]] * a;
+    m_f.col(soft.particle[k]) += f_mapped;
+    mapped_total += f_mapped;
+  }
+
+  m_g.setZero();
+  s.m_springs.add_elastic_forces(x_springs, m_g);
+  m_f += m_g;
+  gather_synchronized(s, m_f);
+  s.m_hard.distribute(m_f, m_wrench);
+  return mapped_total;
+}
+
+void Newmark::build_rhs(const System& s, double h, const Vectors3& v_start, const Vectors3& body_v, const Vectors3& body_L) {
+  for (Index i = 0; i < m_n; ++i) m_c.particles.col(i) = m_dof_mass[i] * v_start.col(i) + (h * m_dynamic_mask[i]) * m_f.col(i);
+  for (Index b = 0; b < m_r; ++b) {
+    if (!m_dynamic_body[b]) {
+      m_c.rigid.col(b).setZero();
+      continue;
+    }
+    m_c.rigid.col(b).head<3>() = s.m_bodies.mass[b] * body_v.col(b) + h * m_wrench.col(b).head<3>();
+    m_c.rigid.col(b).tail<3>() = body_L.col(b) + h * m_wrench.col(b).tail<3>();
+  }
+}
+
+// ---- the linear solve -----------------------------------------------------------------------------
+
+// S u = M u - h W^T (D + beta K) W u on the unknowns; rows without unknowns return zero. W is applied
+// by clamping bound rows from the trial velocities (hard bindings are eliminated, not projected).
+void Newmark::apply(System& s, double h, double beta, const GeneralizedVector& u, GeneralizedVector& out) {
+  m_tmp_v = u.particles;
+  s.m_hard.clamp_velocities(m_tmp_v, u.rigid);
+  for (Index k = 0; k < s.m_soft.size(); ++k)
+    if (s.m_soft.coupling[k] == SoftCoupling::synchronized) m_tmp_v.col(s.m_soft.particle[k]) = m_tmp_v.col(s.m_soft.target[k]);
+  m_apply_f.setZero();
+  m_apply_wrench.setZero();
+  for (const auto& f : s.m_forces) f->add_damping_forces(m_tmp_v, m_apply_f);
+  s.m_springs.add_linear_forces(m_tmp_v, 1.0, beta, m_apply_f);
+  gather_synchronized(s, m_apply_f);
+  s.m_hard.distribute(m_apply_f, m_apply_wrench);
+
+  for (Index i = 0; i < m_n; ++i)
+    out.particles.col(i) = m_dof_mass[i] * u.particles.col(i) - (h * m_dynamic_mask[i]) * m_apply_f.col(i);
+  const auto& bodies = s.m_bodies;
+  for (Index b = 0; b < m_r; ++b) {
+    if (!m_dynamic_body[b]) {
+      out.rigid.col(b).setZero();
+      continue;
+    }
+    out.rigid.col(b).head<3>() = bodies.mass[b] * u.rigid.col(b).head<3>() - h * m_apply_wrench.col(b).head<3>();
+    out.rigid.col(b).tail<3>() = m_body_I[b] * u.rigid.col(b).tail<3>() - h * m_apply_wrench.col(b).tail<3>();
+  }
+  project(out);
+}
+
+void Newmark::build_preconditioner(System& s, double h, double beta, bool jacobi) {
+  m_diag.setZero();
+  if (jacobi) {
+    for (const auto& f : s.m_forces) f->add_damping_diagonal(m_diag);
+    m_diag *= h;
+    s.m_springs.add_diagonal(h, h * beta, m_diag);
+    for (Index k = 0; k < s.m_soft.size(); ++k)
+      if (s.m_soft.coupling[k] == SoftCoupling::synchronized) {
+        m_diag[s.m_soft.target[k]] += m_diag[s.m_soft.particle[k]];
+        m_diag[s.m_soft.particle[k]] = 0.0;
+      }
+  }
+  const HardBindings& hard = s.m_hard;
+  for (Index b = 0; b < m_r; ++b) {
+    auto& block = m_body_preconditioner[b];
+    block.setZero();
+    block.topLeftCorner<3, 3>() = s.m_bodies.mass[b] * Mat3::Identity();
+    block.bottomRightCorner<3, 3>() = m_body_I[b];
+  }
+  if (jacobi) {
+    for (Index k = 0; k < hard.linear_count(); ++k) {
+      const double d = m_diag[hard.linear_particle(k)];
+      const auto parents = hard.linear_parents(k);
+      const auto weights = hard.linear_weights(k);
+      for (std::size_t j = 0; j < parents.size(); ++j) m_diag[parents[j]] += weights[j] * weights[j] * d;
+    }
+    for (Index k = 0; k < hard.rigid_count(); ++k) {
+      // W^T d W with W = [I  r*^T]: the bound point's diagonal seen by the body's twist.
+      const double d = m_diag[hard.rigid_particle(k)];
+      const Mat3 rs = cross_matrix(hard.rigid_offset_world(k));
+      auto& block = m_body_preconditioner[hard.rigid_body(k)];
+      block.topLeftCorner<3, 3>() += d * Mat3::Identity();
+      block.topRightCorner<3, 3>() += d * rs.transpose();
+      block.bottomLeftCorner<3, 3>() += d * rs;
+      block.bottomRightCorner<3, 3>() += d * rs * rs.transpose();
+    }
+  }
+  for (Index i = 0; i < m_n; ++i) m_inverse_diag[i] = m_dynamic_mask[i] > 0.0 ? 1.0 / (m_dof_mass[i] + m_diag[i]) : 0.0;
+  for (Index b = 0; b < m_r; ++b)
+    m_body_preconditioner[b] = m_dynamic_body[b] ? Eigen::Matrix<double, 6, 6>(m_body_preconditioner[b].inverse())
+                                                 : Eigen::Matrix<double, 6, 6>::Zero();
+}
+
+void Newmark::precondition(const GeneralizedVector& r, GeneralizedVector& z) const {
+  for (Index i = 0; i < m_n; ++i) z.particles.col(i) = m_inverse_diag[i] * r.particles.col(i);
+  for (Index b = 0; b < m_r; ++b) z.rigid.col(b) = m_body_preconditioner[b] * r.rigid.col(b);
+  project(z);
+}
+
+void Newmark::project(GeneralizedVector& u) const {
+  for (Index i = 0; i < m_n; ++i)
+    if (m_dynamic_mask[i] == 0.0) u.particles.col(i).setZero();
+  for (Index b = 0; b < m_r; ++b)
+    if (!m_dynamic_body[b]) u.rigid.col(b).setZero();
+  for (const CollisionConstraint& c : m_constraints) {
+    auto col = u.particles.col(c.particle);
+    col -= c.normal.dot(col) * c.normal;
+  }
+}
+
+// Preconditioned conjugate gradients on the symmetric positive definite S = M + h W^T(D + beta K)W
+// (symmetric in the plain inner product; the paper's mass inner product form is the same iteration).
+// Constrained directions (kinematic rows and bodies, collision normals) keep their initial values.
+Newmark::SolveResult Newmark::solve(System& s, double h, double beta, bool linear_solve) {
+  SolveResult result;
+  const StepSettings& settings = s.m_step_settings;
+  build_preconditioner(s, h, beta, settings.jacobi_preconditioner && linear_solve);
+  apply(s, h, beta, m_y, m_q);
+  m_r_vec.particles = m_c.particles - m_q.particles;
+  m_r_vec.rigid = m_c.rigid - m_q.rigid;
+  project(m_r_vec);
+  precondition(m_r_vec, m_z);
+  if (!linear_solve) {
+    // No implicit term: S is M (diagonal for particles, diag(m I, I) per body), solved exactly.
+    m_y.particles += m_z.particles;
+    m_y.rigid += m_z.rigid;
+    return result;
+  }
+  auto residual = [&] { return std::max(m_z.particles.cwiseAbs().maxCoeff(), m_r > 0 ? m_z.rigid.cwiseAbs().maxCoeff() : 0.0); };
+  if (m_n == 0 && m_r == 0) return result;
+  m_p.particles = m_z.particles;
+  m_p.rigid = m_z.rigid;
+  double rz = dot(m_r_vec, m_z);
+  result.residual = residual();
+  while (result.residual > settings.cg_tolerance) {
+    if (result.iterations >= settings.cg_max_iterations) {
+      result.converged = false;
+      break;
+    }
+    apply(s, h, beta, m_p, m_q);
+    const double pq = dot(m_p, m_q);
+    if (!(pq > 0.0)) {
+      if (!std::isfinite(pq)) fail("Newmark step ", m_step_count, ": conjugate gradients produced a non-finite value");
+      break;  // the remaining residual lies in S's null space: nothing more to gain
+    }
+    const double alpha = rz / pq;
+    m_y.particles += alpha * m_p.particles;
+    m_y.rigid += alpha * m_p.rigid;
+    m_r_vec.particles -= alpha * m_q.particles;
+    m_r_vec.rigid -= alpha * m_q.rigid;
+    precondition(m_r_vec, m_z);
+    const double rz_new = dot(m_r_vec, m_z);
+    const double beta_cg = rz_new / rz;
+    rz = rz_new;
+    m_p.particles = m_z.particles + beta_cg * m_p.particles;
+    m_p.rigid = m_z.rigid + beta_cg * m_p.rigid;
+    ++result.iterations;
+    result.residual = residual();
+  }
+  return result;
+}
+
+// ---- soft bindings -------------------------------------------------------------------------------
+
+void Newmark::synchronize(System& s, bool positions, bool velocities) {
+  const SoftBindings& soft = s.m_soft;
+  auto& p = s.m_particles;
+  for (Index k = 0; k < soft.size(); ++k) {
+    if (soft.coupling[k] != SoftCoupling::synchronized) continue;
+    if (positions) p.x.col(soft.particle[k]) = p.x.col(soft.target[k]);
+    if (velocities) p.v.col(soft.particle[k]) = p.v.col(soft.target[k]);
+  }
+}
+
+void Newmark::gather_synchronized(System& s, Vectors3& f) const {
+  const SoftBindings& soft = s.m_soft;
+  for (Index k = 0; k < soft.size(); ++k) {
+    if (soft.coupling[k] != SoftCoupling::synchronized) continue;
+    f.col(soft.target[k]) += f.col(soft.particle[k]);
+    f.col(soft.particle[k]).setZero();
+  }
+}
+
+// Section 3.1: drift dx = x_s - x_e, dv = v_s - v_e goes to the target: directly for a free target,
+// as dx_i = w_i (m_e/m_i) dx to the parents of a point embedded in particles (section 2), and as
+// the impulse m_e dv (and the matching displacement) at the point of a rigid frame, with m_e the
+// effective mass along the drift so the target point moves by exactly the drift (to first order).
+void Newmark::push_synchronized_drift(System& s) {
+  const SoftBindings& soft = s.m_soft;
+  auto& p = s.m_particles;
+  auto& bodies = s.m_bodies;
+  const HardBindings& hard = s.m_hard;
+  for (Index k = 0; k < soft.size(); ++k) {
+    if (soft.coupling[k] != SoftCoupling::synchronized) continue;
+    const Index sp = soft.particle[k], t = soft.target[k];
+    const Vec3 dx = p.x.col(sp) - p.x.col(t);
+    const Vec3 dv = p.v.col(sp) - p.v.col(t);
+    if (dx.isZero(0.0) && dv.isZero(0.0)) continue;
+    const Index code = hard.binding_of(t);
+    if (code == HardBindings::unbound) {
+      if (p.kind[t] == ParticleKind::kinematic) continue;  // a prescribed target cannot move
+      p.x.col(t) += dx;
+      p.v.col(t) += dv;
+    } else if (code >= 0) {
+      const double m_e = s.m_effective_mass[t];
+      if (!std::isfinite(m_e)) continue;
+      const auto parents = hard.linear_parents(code);
+      const auto weights = hard.linear_weights(code);
+      for (std::size_t j = 0; j < parents.size(); ++j) {
+        if (p.kind[parents[j]] == ParticleKind::kinematic) continue;
+        const double c = weights[j] * m_e / p.mass[parents[j]];
+        p.x.col(parents[j]) += c * dx;
+        p.v.col(parents[j]) += c * dv;
+      }
+    } else {
+      const Index r = -code - 1, b = hard.rigid_body(r);
+      if (!m_dynamic_body[b]) continue;
+      const Vec3 offset = hard.rigid_offset_world(r);
+      const Mat3 inverse_inertia = bodies.world_inverse_inertia(b);
+      auto apply = [&](const Vec3& delta, bool position) {
+        const double n2 = delta.squaredNorm();
+        if (n2 == 0.0) return;
+        const Vec3 n = delta / std::sqrt(n2);
+        const double m_e = 1.0 / n.dot(bodies.impulse_matrix(b, offset) * n);
+        const Vec3 j = m_e * delta;
+        const Vec3 dtheta = inverse_inertia * offset.cross(j);
+        if (position) {
+          bodies.x.col(b) += j / bodies.mass[b];
+          bodies.q[b] = (rotation_from_vector(dtheta) * bodies.q[b]).normalized();
+        } else {
+          bodies.v.col(b) += j / bodies.mass[b];
+          bodies.w.col(b) += dtheta;
+          m_body_L_n.col(b) += offset.cross(j);
+        }
+      };
+      apply(dv, false);
+      apply(dx, true);
+      s.m_hard.update_rigid_offsets(bodies);
+    }
+  }
+}
+
+void Newmark::check_finite(const System& s, const char* phase) const {
+  const auto& p = s.m_particles;
+  for (Index i = 0; i < m_n; ++i) {
+    if (!all_finite(p.x.col(i)))
+      fail("Newmark step ", m_step_count, ", ", phase, ": particle ", i, " has a non-finite position (", p.x.col(i).transpose(), ")");
+    if (!all_finite(p.v.col(i)))
+      fail("Newmark step ", m_step_count, ", ", phase, ": particle ", i, " has a non-finite velocity (", p.v.col(i).transpose(), ")");
+  }
+  const auto& bodies = s.m_bodies;
+  for (Index b = 0; b < m_r; ++b)
+    if (!all_finite(bodies.x.col(b)) || !all_finite(bodies.v.col(b)) || !all_finite(bodies.w.col(b)) ||
+        !std::isfinite(bodies.q[b].norm()))
+      fail("Newmark step ", m_step_count, ", ", phase, ": rigid body ", b, " has a non-finite state");
+}
+
+}  // namespace sinew

@@ -1,1 +1,420 @@
-// placeholder
+#include "sinew/system.hpp"
+
+#include "newmark.hpp"
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <cstring>
+
+namespace sinew {
+
+PhaseTimes& PhaseTimes::operator+=(const PhaseTimes& o) {
+  implicit_half_velocity += o.implicit_half_velocity;
+  advance_positions += o.advance_positions;
+  process_collisions += o.process_collisions;
+  backward_euler_velocity += o.backward_euler_velocity;
+  extrapolate_velocity += o.extrapolate_velocity;
+  forces += o.forces;
+  cg += o.cg;
+  total += o.total;
+  return *this;
+}
+
+StepStats& StepStats::operator+=(const StepStats& o) {
+  substeps += o.substeps;
+  dt = o.dt;
+  cg_iterations_step1 += o.cg_iterations_step1;
+  cg_iterations_step4 += o.cg_iterations_step4;
+  cg_residual = std::max(cg_residual, o.cg_residual);
+  cg_converged = cg_converged && o.cg_converged;
+  linear_solve = linear_solve || o.linear_solve;
+  mapped_impulse += o.mapped_impulse;
+  ms += o.ms;
+  return *this;
+}
+
+System::System(const SystemSettings& settings) : m_settings(settings) {
+  if (!all_finite(settings.gravity)) fail("system settings: gravity is not finite");
+}
+System::~System() = default;
+System::System(System&&) noexcept = default;
+System& System::operator=(System&&) noexcept = default;
+
+void System::require_not_finalized(const char* what) const {
+  if (m_finalized) fail("cannot ", what, " after the system is finalized (its first step)");
+}
+
+Index System::add_particle(const Vec3& x, const Vec3& v, double mass) {
+  require_not_finalized("add a particle");
+  const Index i = m_particles.size();
+  if (!all_finite(x) || !all_finite(v)) fail("particle ", i, ": position or velocity is not finite");
+  if (!(std::isfinite(mass) && mass >= 0.0)) fail("particle ", i, ": mass ", mass, " must be non-negative and finite");
+  m_particles.x.conservativeResize(3, i + 1);
+  m_particles.v.conservativeResize(3, i + 1);
+  m_particles.x.col(i) = x;
+  m_particles.v.col(i) = v;
+  m_input_mass.conservativeResize(i + 1);
+  m_input_mass[i] = mass;
+  m_particles.kind.push_back(ParticleKind::free);
+  return i;
+}
+
+Index System::add_kinematic_particle(const Vec3& x, const Vec3& v) {
+  const Index i = add_particle(x, v, 0.0);
+  m_particles.kind[i] = ParticleKind::kinematic;
+  return i;
+}
+
+Index System::add_rigid_body(const RigidBodySettings& settings) {
+  require_not_finalized("add a rigid body");
+  return sinew::add_rigid_body(m_bodies, settings);
+}
+
+Index System::bind_linear(Index particle, std::span<const Index> parents, std::span<const double> weights) {
+  require_not_finalized("add a hard binding");
+  const Index id = m_hard.size();
+  m_hard.add_linear(particle, parents, weights);
+  return id;
+}
+
+Index System::bind_rigid(Index particle, Index body, const Vec3& r0) {
+  require_not_finalized("add a hard binding");
+  const Index id = m_hard.size();
+  m_hard.add_rigid(particle, body, r0);
+  return id;
+}
+
+Index System::bind_rigid_here(Index particle, Index body) {
+  if (particle < 0 || particle >= m_particles.size()) fail("binding ", m_hard.size(), ": particle ", particle, " does not exist");
+  if (body < 0 || body >= m_bodies.size()) fail("binding ", m_hard.size(), ": rigid body ", body, " does not exist");
+  const Vec3 r0 = m_bodies.q[body].conjugate() * (m_particles.x.col(particle) - m_bodies.x.col(body));
+  return bind_rigid(particle, body, r0);
+}
+
+Index System::add_soft_binding(const SoftBindingSettings& s) {
+  require_not_finalized("add a soft binding");
+  const Index id = m_soft.size();
+  if (!(std::isfinite(s.mass) && s.mass >= 0.0)) fail("soft binding ", id, ": mass ", s.mass, " must be non-negative and finite");
+  if (s.particle == s.target) fail("soft binding ", id, ": particle ", s.particle, " is its own target");
+  Index spring = -1;
+  if (s.coupling == SoftCoupling::spring) {
+    try {
+      spring = m_springs.add({s.particle, s.target, s.stiffness, s.damping_ratio});
+    } catch (const Error& e) {
+      fail("soft binding ", id, ": ", e.what());
+    }
+  }
+  m_soft.particle.push_back(s.particle);
+  m_soft.target.push_back(s.target);
+  m_soft.coupling.push_back(s.coupling);
+  m_soft.spring.push_back(spring);
+  m_soft.mass_override.push_back(s.mass);
+  return id;
+}
+
+Index System::add_binding_spring(const BindingSpringSettings& settings) {
+  require_not_finalized("add a binding spring");
+  return m_springs.add(settings);
+}
+
+void System::add_force_impl(std::unique_ptr<Force> force) {
+  require_not_finalized("add a force");
+  if (!force) fail("add_force: null force");
+  force->validate(m_particles.size());
+  m_forces.push_back(std::move(force));
+}
+
+void System::finalize() {
+  if (m_finalized) return;
+  const Index n = m_particles.size();
+  m_hard.flatten(n, m_bodies.size());
+
+  // Particle kinds: hard-bound rows first, then soft-bound ones, each checked against the others.
+  auto& kind = m_particles.kind;
+  for (Index k = 0; k < m_hard.linear_count(); ++k) {
+    const Index p = m_hard.linear_particle(k);
+    if (kind[p] == ParticleKind::kinematic) fail("particle ", p, " is kinematic and cannot be hard-bound");
+    kind[p] = ParticleKind::hard_bound;
+  }
+  for (Index k = 0; k < m_hard.rigid_count(); ++k) {
+    const Index p = m_hard.rigid_particle(k);
+    if (kind[p] == ParticleKind::kinematic) fail("particle ", p, " is kinematic and cannot be hard-bound");
+    kind[p] = ParticleKind::hard_bound;
+  }
+  std::vector<std::uint8_t> is_soft(static_cast<std::size_t>(n), 0);
+  for (Index s = 0; s < m_soft.size(); ++s) {
+    const Index p = m_soft.particle[s], t = m_soft.target[s];
+    if (p < 0 || p >= n) fail("soft binding ", s, ": particle ", p, " out of range [0, ", n, ")");
+    if (t < 0 || t >= n) fail("soft binding ", s, ": target ", t, " out of range [0, ", n, ")");
+    if (kind[p] != ParticleKind::free) fail("soft binding ", s, ": particle ", p, " is already kinematic or bound");
+    if (is_soft[p]) fail("soft binding ", s, ": particle ", p, " is soft-bound twice");
+    is_soft[p] = 1;
+    kind[p] = m_soft.coupling[s] == SoftCoupling::spring ? ParticleKind::soft_spring : ParticleKind::soft_synchronized;
+  }
+  for (Index s = 0; s < m_soft.size(); ++s)
+    if (is_soft[m_soft.target[s]]) fail("soft binding ", s, ": target ", m_soft.target[s], " is itself soft-bound");
+  for (Index s = 0; s < m_springs.size(); ++s)
+    if (m_springs.a(s) >= n || m_springs.b(s) >= n)
+      fail("binding spring ", s, ": endpoint out of range [0, ", n, ")");
+
+  // Masses (section 2): m = W^T m_bar. Points on rigid frames join their body; points embedded in
+  // particles pass w_i m_bar to each parent (weight w, not w^2: momentum P = m_bar^T W v).
+  m_particles.mass = m_input_mass;
+  m_hard.update_rigid_offsets(m_bodies);
+  if (m_settings.absorb_bound_mass_into_rigid_bodies) absorb_bound_masses();
+  m_hard.update_rigid_offsets(m_bodies);
+  for (Index k = 0; k < m_hard.rigid_count(); ++k) m_particles.mass[m_hard.rigid_particle(k)] = 0.0;
+  for (Index k = 0; k < m_hard.linear_count(); ++k) {
+    const Index p = m_hard.linear_particle(k);
+    const auto parents = m_hard.linear_parents(k);
+    const auto weights = m_hard.linear_weights(k);
+    for (std::size_t j = 0; j < parents.size(); ++j) m_particles.mass[parents[j]] += weights[j] * m_particles.mass[p];
+    m_particles.mass[p] = 0.0;
+  }
+  for (Index i = 0; i < n; ++i) {
+    if (kind[i] == ParticleKind::kinematic) m_particles.mass[i] = kInfinity;
+    if (kind[i] == ParticleKind::free && !(m_particles.mass[i] > 0.0))
+      fail("particle ", i, " has mass ", m_particles.mass[i],
+           " after binding masses were distributed: a free particle needs positive mass (bind it, make it kinematic, or give it mass)");
+  }
+  compute_effective_masses();
+  m_springs.set_damping_from_masses(m_inverse_effective_mass);
+
+  m_hard.update_rigid_offsets(m_bodies);
+  clamp_bound_rows();
+  m_newmark = std::make_unique<Newmark>();
+  m_finalized = true;
+}
+
+void System::absorb_bound_masses() {
+  // A point of mass m_bar fixed in a rigid frame is part of that body: merge it by the parallel-axis
+  // theorem, move the centre of mass, rediagonalise the inertia and re-express every offset of the
+  // body in the new principal frame. Momentum is kept: the new centre of mass moves with the velocity
+  // the old frame gives it.
+  for (Index b = 0; b < m_bodies.size(); ++b) {
+    if (m_bodies.kinematic[b]) continue;
+    double added = 0.0;
+    Vec3 moment = Vec3::Zero();
+    for (Index k = 0; k < m_hard.rigid_count(); ++k) {
+      if (m_hard.rigid_body(k) != b) continue;
+      const double m = m_particles.mass[m_hard.rigid_particle(k)];
+      added += m;
+      moment += m * (m_bodies.x.col(b) + m_hard.rigid_offset_world(k));
+    }
+    if (added == 0.0) continue;
+    const double m0 = m_bodies.mass[b];
+    const Vec3 c0 = m_bodies.x.col(b);
+    const double total = m0 + added;
+    const Vec3 c = (m0 * c0 + moment) / total;
+    auto point_inertia = [](double m, const Vec3& d) { return m * (d.squaredNorm() * Mat3::Identity() - d * d.transpose()); };
+    Mat3 inertia = m_bodies.world_inertia(b) + point_inertia(m0, c0 - c);
+    for (Index k = 0; k < m_hard.rigid_count(); ++k)
+      if (m_hard.rigid_body(k) == b)
+        inertia += point_inertia(m_particles.mass[m_hard.rigid_particle(k)], c0 + m_hard.rigid_offset_world(k) - c);
+    Eigen::SelfAdjointEigenSolver<Mat3> eig(inertia);
+    Mat3 r = eig.eigenvectors();
+    if (r.determinant() < 0) r.col(2) = -r.col(2);
+    const Quat q_new(r);
+    const Vec3 w = m_bodies.w.col(b);
+    for (Index k = 0; k < m_hard.rigid_count(); ++k)
+      if (m_hard.rigid_body(k) == b)
+        m_hard.set_rigid_offset_body(k, q_new.conjugate() * (c0 + m_hard.rigid_offset_world(k) - c));
+    m_bodies.v.col(b) += w.cross(c - c0);
+    m_bodies.x.col(b) = c;
+    m_bodies.q[b] = q_new.normalized();
+    m_bodies.mass[b] = total;
+    m_bodies.inertia.col(b) = eig.eigenvalues();
+  }
+}
+
+void System::compute_effective_masses() {
+  const Index n = m_particles.size();
+  m_inverse_effective_mass.setZero(n);
+  for (Index i = 0; i < n; ++i)
+    if (m_particles.kind[i] == ParticleKind::free) m_inverse_effective_mass[i] = 1.0 / m_particles.mass[i];
+  for (Index k = 0; k < m_hard.linear_count(); ++k)
+    m_inverse_effective_mass[m_hard.linear_particle(k)] = m_hard.inverse_effective_mass_linear(k, m_particles.mass);
+  for (Index k = 0; k < m_hard.rigid_count(); ++k) {
+    // The impulse matrix K's eigenvalues do not depend on the orientation (K rotates with the body),
+    // so its largest eigenvalue, the smallest effective mass, is a constant of the binding.
+    const Mat3 K = m_bodies.impulse_matrix(m_hard.rigid_body(k), m_hard.rigid_offset_world(k));
+    m_inverse_effective_mass[m_hard.rigid_particle(k)] = Eigen::SelfAdjointEigenSolver<Mat3>(K).eigenvalues().maxCoeff();
+  }
+  for (Index s = 0; s < m_soft.size(); ++s) {
+    const Index p = m_soft.particle[s], t = m_soft.target[s];
+    double m = m_soft.mass_override[s];
+    if (m == 0.0) {
+      if (!(m_inverse_effective_mass[t] > 0.0))
+        fail("soft binding ", s, ": target ", t, " has infinite effective mass (kinematic); give the soft particle a mass");
+      m = 1.0 / m_inverse_effective_mass[t];
+    }
+    m_particles.mass[p] = m;
+    m_inverse_effective_mass[p] = 1.0 / m;
+  }
+  m_effective_mass.resize(n);
+  for (Index i = 0; i < n; ++i)
+    m_effective_mass[i] = m_inverse_effective_mass[i] > 0.0 ? 1.0 / m_inverse_effective_mass[i] : kInfinity;
+}
+
+double System::effective_mass(Index particle) const {
+  if (!m_finalized) fail("effective_mass: finalize the system first");
+  return m_effective_mass[particle];
+}
+
+double System::effective_mass_along(Index particle, const Vec3& n) const {
+  const Index code = m_hard.binding_of(particle);
+  if (code == HardBindings::unbound || code >= 0) return effective_mass(particle);
+  const Index k = -code - 1;
+  const Vec3 r = m_bodies.q[m_hard.rigid_body(k)] * m_hard.rigid_offset_body(k);
+  const double inverse = n.dot(m_bodies.impulse_matrix(m_hard.rigid_body(k), r) * n);
+  return inverse > 0.0 ? 1.0 / inverse : kInfinity;
+}
+
+void System::apply_impulse(Index particle, const Vec3& j) {
+  finalize();
+  if (particle < 0 || particle >= m_particles.size()) fail("apply_impulse: particle ", particle, " does not exist");
+  if (!all_finite(j)) fail("apply_impulse: impulse on particle ", particle, " is not finite");
+  const Index code = m_hard.binding_of(particle);
+  if (code == HardBindings::unbound) {
+    if (m_particles.kind[particle] != ParticleKind::kinematic) m_particles.v.col(particle) += j / m_particles.mass[particle];
+  } else if (code >= 0) {
+    const auto parents = m_hard.linear_parents(code);
+    const auto weights = m_hard.linear_weights(code);
+    for (std::size_t i = 0; i < parents.size(); ++i)
+      if (m_particles.kind[parents[i]] != ParticleKind::kinematic)
+        m_particles.v.col(parents[i]) += (weights[i] / m_particles.mass[parents[i]]) * j;
+  } else {
+    const Index k = -code - 1, b = m_hard.rigid_body(k);
+    if (!m_bodies.kinematic[b]) {
+      const Vec3 r = m_bodies.q[b] * m_hard.rigid_offset_body(k);
+      m_bodies.v.col(b) += j / m_bodies.mass[b];
+      m_bodies.w.col(b) += m_bodies.world_inverse_inertia(b) * r.cross(j);
+    }
+  }
+  clamp_bound_rows();
+}
+
+void System::clamp_bound_rows() {
+  m_hard.update_rigid_offsets(m_bodies);
+  m_hard.clamp_positions(m_particles.x, m_bodies.x);
+  m_hard.clamp_velocities(m_particles.v, m_bodies.v, m_bodies.w);
+  for (Index s = 0; s < m_soft.size(); ++s) {
+    if (m_soft.coupling[s] != SoftCoupling::synchronized) continue;
+    m_particles.x.col(m_soft.particle[s]) = m_particles.x.col(m_soft.target[s]);
+    m_particles.v.col(m_soft.particle[s]) = m_particles.v.col(m_soft.target[s]);
+  }
+}
+
+StepStats System::step(double dt) {
+  if (!(std::isfinite(dt) && dt > 0.0)) fail("step: dt ", dt, " must be positive and finite");
+  finalize();
+  StepStats stats = m_newmark->step(*this, dt);
+  m_time += dt;
+  return stats;
+}
+
+double System::stable_dt() {
+  finalize();
+  double dt = kInfinity;
+  for (const auto& f : m_forces) dt = std::min(dt, f->stable_dt(m_effective_mass));
+  return dt;
+}
+
+StepStats System::advance(double frame_dt) {
+  if (!(std::isfinite(frame_dt) && frame_dt > 0.0)) fail("advance: frame dt ", frame_dt, " must be positive and finite");
+  const double limit = m_step_settings.cfl * stable_dt();
+  const double count = std::ceil(frame_dt / limit);
+  if (count > m_step_settings.max_substeps)
+    fail("advance: the stable step ", limit, " s needs ", count, " substeps for a frame of ", frame_dt,
+         " s, more than max_substeps = ", m_step_settings.max_substeps);
+  const int substeps = std::max(1, static_cast<int>(count));
+  const double dt = frame_dt / substeps;
+  StepStats total;
+  for (int i = 0; i < substeps; ++i) total += step(dt);
+  return total;
+}
+
+// ---- diagnostics -------------------------------------------------------------------------------
+
+namespace {
+bool counts_for_momentum(ParticleKind kind, bool include_soft) {
+  return kind == ParticleKind::free || (include_soft && kind == ParticleKind::soft_spring);
+}
+}  // namespace
+
+Vec3 System::linear_momentum(bool include_soft) const {
+  Vec3 p = Vec3::Zero();
+  for (Index i = 0; i < m_particles.size(); ++i)
+    if (counts_for_momentum(m_particles.kind[i], include_soft)) p += m_particles.mass[i] * m_particles.v.col(i);
+  for (Index b = 0; b < m_bodies.size(); ++b)
+    if (!m_bodies.kinematic[b]) p += m_bodies.mass[b] * m_bodies.v.col(b);
+  return p;
+}
+
+Vec3 System::angular_momentum(bool include_soft) const {
+  Vec3 l = Vec3::Zero();
+  for (Index i = 0; i < m_particles.size(); ++i)
+    if (counts_for_momentum(m_particles.kind[i], include_soft))
+      l += m_particles.mass[i] * Vec3(m_particles.x.col(i)).cross(Vec3(m_particles.v.col(i)));
+  for (Index b = 0; b < m_bodies.size(); ++b)
+    if (!m_bodies.kinematic[b])
+      l += m_bodies.mass[b] * Vec3(m_bodies.x.col(b)).cross(Vec3(m_bodies.v.col(b))) + m_bodies.angular_momentum(b);
+  return l;
+}
+
+double System::kinetic_energy(bool include_soft) const {
+  double e = 0.0;
+  for (Index i = 0; i < m_particles.size(); ++i)
+    if (counts_for_momentum(m_particles.kind[i], include_soft)) e += 0.5 * m_particles.mass[i] * m_particles.v.col(i).squaredNorm();
+  for (Index b = 0; b < m_bodies.size(); ++b)
+    if (!m_bodies.kinematic[b])
+      e += 0.5 * m_bodies.mass[b] * m_bodies.v.col(b).squaredNorm() + 0.5 * m_bodies.w.col(b).dot(m_bodies.angular_momentum(b));
+  return e;
+}
+
+double System::potential_energy() {
+  finalize();
+  double e = m_springs.potential_energy(m_particles.x);
+  for (const auto& f : m_forces) e += f->potential_energy(m_particles.x);
+  const Vec3& g = m_settings.gravity;
+  for (Index i = 0; i < m_particles.size(); ++i)
+    if (m_particles.kind[i] == ParticleKind::free) e -= m_particles.mass[i] * g.dot(m_particles.x.col(i));
+  for (Index b = 0; b < m_bodies.size(); ++b)
+    if (!m_bodies.kinematic[b] && m_bodies.gravity[b]) e -= m_bodies.mass[b] * g.dot(m_bodies.x.col(b));
+  return e;
+}
+
+double System::max_hard_binding_drift() const {
+  double drift = 0.0;
+  for (Index k = 0; k < m_hard.linear_count(); ++k) {
+    Vec3 xe = Vec3::Zero();
+    const auto parents = m_hard.linear_parents(k);
+    const auto weights = m_hard.linear_weights(k);
+    for (std::size_t j = 0; j < parents.size(); ++j) xe += weights[j] * m_particles.x.col(parents[j]);
+    drift = std::max(drift, (xe - m_particles.x.col(m_hard.linear_particle(k))).norm());
+  }
+  for (Index k = 0; k < m_hard.rigid_count(); ++k) {
+    const Index b = m_hard.rigid_body(k);
+    const Vec3 xe = m_bodies.x.col(b) + m_bodies.q[b] * m_hard.rigid_offset_body(k);
+    drift = std::max(drift, (xe - m_particles.x.col(m_hard.rigid_particle(k))).norm());
+  }
+  return drift;
+}
+
+std::uint64_t System::state_hash() const {
+  std::uint64_t h = 1469598103934665603ull;
+  auto mix = [&h](const void* data, std::size_t bytes) {
+    const auto* c = static_cast<const unsigned char*>(data);
+    for (std::size_t i = 0; i < bytes; ++i) h = (h ^ c[i]) * 1099511628211ull;
+  };
+  mix(m_particles.x.data(), sizeof(double) * m_particles.x.size());
+  mix(m_particles.v.data(), sizeof(double) * m_particles.v.size());
+  mix(m_bodies.x.data(), sizeof(double) * m_bodies.x.size());
+  mix(m_bodies.v.data(), sizeof(double) * m_bodies.v.size());
+  mix(m_bodies.w.data(), sizeof(double) * m_bodies.w.size());
+  for (const Quat& q : m_bodies.q) mix(q.coeffs().data(), sizeof(double) * 4);
+  return h;
+}
+
+}  // namespace sinew

@@ -1,0 +1,65 @@
+// Corotated linear elasticity on linear tetrahedra, robust to inversion.
+#pragma once
+
+#include "sinew/force.hpp"
+
+#include <array>
+#include <vector>
+
+namespace sinew {
+
+struct CorotatedTetsSettings {
+  double young_modulus = 1.0e5;  ///< E [Pa]; finite, > 0
+  double poisson_ratio = 0.3;    ///< nu, in (-1, 0.5)
+  double beta = 0.0;             ///< stiffness-proportional (strain-rate) damping time [s]; finite, >= 0
+};
+
+class CorotatedTets final : public Force {
+ public:
+  using Tet = std::array<Index, 4>;
+
+  /// rest_x: 3 x N rest positions; tets index its columns with positive orientation
+  /// ((x1 - x0) x (x2 - x0)) . (x3 - x0) > 0. Throws sinew::Error naming the bad setting or tet
+  /// (index out of range, repeated vertex, inverted or flat at rest).
+  CorotatedTets(std::vector<Tet> tets, const Vectors3& rest_x, const CorotatedTetsSettings& settings = {});
+
+  std::string_view name() const override { return "corotated tets"; }
+  void validate(Index particle_count) const override;
+  void update_position_state(const Vectors3& x) override;
+  double potential_energy(const Vectors3& x) const override;
+  void add_elastic_forces(const Vectors3& x, Vectors3& f) const override;
+  void add_elastic_differentials(const Vectors3& dx, Vectors3& df) const override;
+  void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
+  void add_damping_diagonal(VectorXd& diag) const override;
+  bool has_damping() const override { return m_settings.beta > 0.0; }
+  double stable_dt(const VectorXd& m_eff) const override;
+
+  const std::vector<Tet>& tets() const { return m_tets; }
+  const std::vector<double>& rest_volumes() const { return m_volume; }
+  const CorotatedTetsSettings& settings() const { return m_settings; }
+  double mu() const { return m_mu; }          ///< Lame shear modulus [Pa]
+  double lambda() const { return m_lambda; }  ///< Lame first parameter [Pa]
+
+ private:
+  /// Signed SVD of F and what the differential and damping need from it.
+  struct TetState {
+    Mat3 U;      ///< left rotation
+    Mat3 V;      ///< right rotation
+    Mat3 R;      ///< U V^T
+    Vec3 sigma;  ///< signed singular values (the smallest negative when inverted)
+    Vec3 phat;   ///< diagonal first Piola-Kirchhoff stress in the SVD frame
+  };
+
+  std::vector<Tet> m_tets;
+  CorotatedTetsSettings m_settings;
+  double m_mu = 0.0;
+  double m_lambda = 0.0;
+  std::vector<Mat3> m_dm_inv;  ///< inverse of the rest edge matrix [x1-x0, x2-x0, x3-x0]
+  std::vector<double> m_volume;
+  std::vector<std::array<double, 4>> m_dt_weights;  ///< stable_dt weights w_{e,a}
+  std::vector<Index> m_incidence_offsets;
+  std::vector<Index> m_incidence;
+  std::vector<TetState> m_state;
+};
+
+}  // namespace sinew

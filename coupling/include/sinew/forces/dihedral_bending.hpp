@@ -1,0 +1,72 @@
+// Discrete-shell bending on the dihedral angle of interior edges (hinges).
+#pragma once
+
+#include "sinew/force.hpp"
+
+#include <array>
+#include <vector>
+
+namespace sinew {
+
+struct DihedralBendingSettings {
+  double stiffness = 1.0e-3;  ///< k_b [J] (N m); finite, >= 0
+  double damping = 0.0;       ///< c [J s], damps the dihedral angle's rate; finite, >= 0
+};
+
+/// Psi = k_b * 3 |e0|^2 / (A1 + A2) * (theta - theta0)^2 per hinge (Grinspun et al. 2003), with
+/// rest edge length |e0|, rest wing areas A1, A2 and rest angle theta0 (curved rest shapes allowed).
+///
+/// Sign convention: with e = x1 - x0, n1 = e x (x2 - x0) (the normal of triangle (x0, x1, x2)) and
+/// n2 = (x3 - x0) x e, theta = atan2((n1 x n2) . e / |e|, n1 . n2) in (-pi, pi]. theta = 0 when
+/// flat; theta = a when the wing of x3 is rotated by a about e, right-handed; theta > 0 when x3
+/// lies on the side of triangle 1 opposite to n1 (the sheet folds away from n1).
+class DihedralBending final : public Force {
+ public:
+  /// (x0, x1): shared edge; x2: opposite vertex in the first triangle; x3: in the second.
+  using Hinge = std::array<Index, 4>;
+  using Triangle = std::array<Index, 3>;
+
+  /// Interior edges shared by exactly two triangles, sorted by (min, max) vertex of the edge. x0, x1
+  /// follow the winding of the lower-numbered triangle, so n1 is that triangle's normal. Boundary
+  /// edges yield no hinge; throws sinew::Error on an edge shared by more than two triangles or a
+  /// triangle with a negative or repeated index.
+  static std::vector<Hinge> hinges_from_triangles(const std::vector<Triangle>& triangles);
+
+  /// The signed dihedral angle of the hinge (x0, x1, x2, x3), convention above.
+  static double dihedral_angle(const Vec3& x0, const Vec3& x1, const Vec3& x2, const Vec3& x3);
+
+  /// rest_x: 3 x N rest positions, giving theta0, |e0| and the areas. Throws sinew::Error naming
+  /// the bad setting or hinge (index out of range, repeated vertex, zero edge, degenerate wing).
+  DihedralBending(std::vector<Hinge> hinges, const Vectors3& rest_x, const DihedralBendingSettings& settings = {});
+
+  std::string_view name() const override { return "dihedral bending"; }
+  void validate(Index particle_count) const override;
+  void update_position_state(const Vectors3& x) override;
+  double potential_energy(const Vectors3& x) const override;
+  void add_elastic_forces(const Vectors3& x, Vectors3& f) const override;
+  void add_elastic_differentials(const Vectors3& dx, Vectors3& df) const override;
+  void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
+  void add_damping_diagonal(VectorXd& diag) const override;
+  bool has_damping() const override { return m_settings.damping > 0.0; }
+  double stable_dt(const VectorXd& m_eff) const override;
+
+  const std::vector<Hinge>& hinges() const { return m_hinges; }
+  const std::vector<double>& rest_angles() const { return m_rest_angle; }
+  /// 3 |e0|^2 / (A1 + A2) per hinge (dimensionless).
+  const std::vector<double>& weights() const { return m_weight; }
+  const DihedralBendingSettings& settings() const { return m_settings; }
+
+ private:
+  std::vector<Hinge> m_hinges;
+  DihedralBendingSettings m_settings;
+  std::vector<double> m_rest_angle;
+  std::vector<double> m_weight;
+  std::vector<std::array<double, 4>> m_dt_weights;  ///< stable_dt weights w_{e,a}
+  std::vector<Index> m_incidence_offsets;
+  std::vector<Index> m_incidence;
+  // Position state: hinge vertex positions (for the differential) and d theta / dx (for damping).
+  std::vector<Eigen::Matrix<double, 3, 4>> m_x;
+  std::vector<Eigen::Matrix<double, 3, 4>> m_grad;
+};
+
+}  // namespace sinew

@@ -1,0 +1,51 @@
+// Linear springs along mesh edges, with damping along the current edge direction.
+#pragma once
+
+#include "sinew/force.hpp"
+
+#include <array>
+#include <vector>
+
+namespace sinew {
+
+struct EdgeSpringsSettings {
+  double stiffness = 1.0e3;  ///< k [N/m], the same for every edge; finite, >= 0
+  double damping = 0.0;      ///< b [N s/m], along the current edge direction; finite, >= 0
+};
+
+/// Springs Psi = k/2 (l - l0)^2 on edges (i, j), with l0 taken from the rest positions.
+class EdgeSprings final : public Force {
+ public:
+  using Edge = std::array<Index, 2>;
+
+  /// rest_x: 3 x N rest positions; edges index its columns. Throws sinew::Error naming the bad
+  /// setting or edge (index out of range, repeated vertex, zero rest length).
+  EdgeSprings(std::vector<Edge> edges, const Vectors3& rest_x, const EdgeSpringsSettings& settings = {});
+
+  std::string_view name() const override { return "edge springs"; }
+  void validate(Index particle_count) const override;
+  void update_position_state(const Vectors3& x) override;
+  double potential_energy(const Vectors3& x) const override;
+  void add_elastic_forces(const Vectors3& x, Vectors3& f) const override;
+  void add_elastic_differentials(const Vectors3& dx, Vectors3& df) const override;
+  void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
+  void add_damping_diagonal(VectorXd& diag) const override;
+  bool has_damping() const override { return m_settings.damping > 0.0; }
+  double stable_dt(const VectorXd& m_eff) const override;
+
+  const std::vector<Edge>& edges() const { return m_edges; }
+  const VectorXd& rest_lengths() const { return m_rest_length; }
+  const EdgeSpringsSettings& settings() const { return m_settings; }
+
+ private:
+  std::vector<Edge> m_edges;
+  EdgeSpringsSettings m_settings;
+  VectorXd m_rest_length;      ///< l0 per edge
+  VectorXd m_stiffness_sum;    ///< sum of k over the edges at each particle (stable_dt)
+  Index m_index_span = 0;      ///< one past the largest particle index used
+  // Position state (update_position_state): unit direction x_j - x_i and length per edge.
+  Vectors3 m_direction;
+  VectorXd m_length;
+};
+
+}  // namespace sinew

@@ -1,0 +1,40 @@
+// What one call to System::step or System::advance reports: per-phase timings, linear-solver work
+// and the momentum bookkeeping of the force mapping.
+#pragma once
+
+#include "sinew/types.hpp"
+
+namespace sinew {
+
+/// Wall-clock milliseconds spent in each phase of the Newmark step (Sifakis et al. 2007, 3.3),
+/// summed over substeps.
+struct PhaseTimes {
+  double implicit_half_velocity = 0;   ///< step 1, eq. 8 (forces, right-hand side and CG)
+  double advance_positions = 0;        ///< step 2
+  double process_collisions = 0;       ///< step 3 (synchronisation, hook, drift push-back)
+  double backward_euler_velocity = 0;  ///< step 4 (forces at x^{n+1/2}, right-hand side and CG)
+  double extrapolate_velocity = 0;     ///< step 5
+  double forces = 0;                   ///< of steps 1 and 4: force evaluation and right-hand side
+  double cg = 0;                       ///< of steps 1 and 4: conjugate gradients
+  double total = 0;
+
+  PhaseTimes& operator+=(const PhaseTimes& o);
+};
+
+struct StepStats {
+  int substeps = 0;
+  double dt = 0;                       ///< the substep used
+  int cg_iterations_step1 = 0;         ///< summed over substeps
+  int cg_iterations_step4 = 0;
+  double cg_residual = 0;              ///< largest final residual [m/s] over all solves
+  bool cg_converged = true;            ///< every solve reached the tolerance
+  bool linear_solve = false;           ///< false when the scene has no implicit term (diagonal solve)
+  /// dt * sum of the forces mapped onto soft-bound particles in step 4: the momentum the mapping adds
+  /// to the system (section 3: soft particles duplicate mass, and the mapping duplicates momentum).
+  Vec3 mapped_impulse = Vec3::Zero();
+  PhaseTimes ms;
+
+  StepStats& operator+=(const StepStats& o);
+};
+
+}  // namespace sinew

@@ -1,0 +1,192 @@
+// sinew::System: particles, rigid-body particles, bindings and forces, advanced by the semi-implicit
+// Newmark step of Sifakis et al. 2007 (section 3.3) with rigid bodies as 6-DOF parents (section 5).
+//
+// Set-up: add particles, rigid bodies, hard bindings, soft bindings, binding springs and forces;
+// every call validates its input and throws sinew::Error naming the bad item. The first step (or an
+// explicit finalize()) resolves binding chains, passes masses to parents (m = W^T m_bar), computes
+// effective masses and binding-spring damping. After that the topology is fixed and the step
+// allocates nothing.
+#pragma once
+
+#include "sinew/binding_springs.hpp"
+#include "sinew/force.hpp"
+#include "sinew/hard_bindings.hpp"
+#include "sinew/particles.hpp"
+#include "sinew/rigid_body_particles.hpp"
+#include "sinew/soft_bindings.hpp"
+#include "sinew/step_stats.hpp"
+
+#include <functional>
+#include <memory>
+#include <span>
+#include <vector>
+
+namespace sinew {
+
+class Newmark;
+
+/// Where step 4 evaluates the binding springs' elastic force.
+enum class BindingSpringStep4 : std::uint8_t {
+  /// -K x^{n+1/2}, explicit, as printed in section 3.3 (undamped springs stay exactly neutral).
+  explicit_half_step,
+  /// -K (x^{n+1/2} + dt/2 v^{n+1/2}), implicit: adds numerical damping to very stiff springs.
+  implicit_half_step,
+  /// -K x^{n+1}: unstable for stiff springs (dt < (b + sqrt(b^2 + 8 mu k)) / 2k); kept so that tests
+  /// can show why x^{n+1/2} is used.
+  explicit_end_of_step,
+};
+
+struct SystemSettings {
+  Vec3 gravity = Vec3(0.0, -9.81, 0.0);  ///< [m/s^2]
+  /// Add the mass of points hard-bound to a rigid frame to that body (shifting its centre of mass
+  /// and inertia), so no mass is lost. Off when another solver owns the body's mass properties.
+  bool absorb_bound_mass_into_rigid_bodies = true;
+};
+
+struct StepSettings {
+  double cg_tolerance = 1e-9;       ///< largest preconditioned residual component [m/s]
+  int cg_max_iterations = 1000;
+  bool jacobi_preconditioner = true;
+  BindingSpringStep4 binding_springs_in_step4 = BindingSpringStep4::explicit_half_step;
+  double cfl = 0.9;                 ///< fraction of the elastic stable step used by advance()
+  int max_substeps = 100000;
+  /// Second-order rotation update: w^{n+1/2} ~ w + dt/2 I^-1 (L x w) for the torque-free drift of
+  /// the angular velocity of an asymmetric body.
+  bool gyroscopic_correction = true;
+};
+
+/// Velocity constraint from a collision in step 3, enforced in the step-4 solve by projection:
+/// the particle's velocity along `normal` is `normal_velocity`.
+struct CollisionConstraint {
+  Index particle = -1;
+  Vec3 normal = Vec3::UnitY();
+  double normal_velocity = 0.0;
+};
+
+/// What the step-3 collision hook sees and may change: (x~^{n+1}, v^n) -> (x^{n+1}, v~^n).
+/// Only free and soft-bound rows may be changed; hard-bound rows are recomputed from their
+/// parents afterwards and kinematic rows are prescribed.
+struct CollisionContext {
+  double time = 0;                     ///< t^n
+  double dt = 0;
+  const Vectors3* x_n = nullptr;       ///< positions at t^n
+  Vectors3* x = nullptr;               ///< in: x~^{n+1}, out: x^{n+1}
+  Vectors3* v = nullptr;               ///< in: v^n, out: v~^n
+  const Particles* particles = nullptr;
+  const RigidBodyParticles* bodies = nullptr;  ///< at the predicted frames (x~_c^{n+1}, q~^{n+1})
+  std::vector<CollisionConstraint>* constraints = nullptr;
+};
+using CollisionHook = std::function<void(CollisionContext&)>;
+
+class System {
+ public:
+  explicit System(const SystemSettings& settings = {});
+  ~System();
+  System(System&&) noexcept;
+  System& operator=(System&&) noexcept;
+
+  // ---- set-up ----------------------------------------------------------------------------------
+  /// A free particle; mass >= 0 (a particle with zero mass must be bound or get mass from children).
+  Index add_particle(const Vec3& x, const Vec3& v, double mass);
+  /// A particle with prescribed motion: it moves with its velocity v, which the caller may change
+  /// between steps.
+  Index add_kinematic_particle(const Vec3& x, const Vec3& v = Vec3::Zero());
+  Index add_rigid_body(const RigidBodySettings& settings);
+  /// Hard binding of `particle` to parents with barycentric weights (sum 1). Returns its index.
+  Index bind_linear(Index particle, std::span<const Index> parents, std::span<const double> weights);
+  /// Hard binding of `particle` to rigid body `body` at offset r0 in the body's principal frame.
+  Index bind_rigid(Index particle, Index body, const Vec3& r0);
+  /// Hard binding to a rigid body at the particle's current position.
+  Index bind_rigid_here(Index particle, Index body);
+  Index add_soft_binding(const SoftBindingSettings& settings);
+  /// A zero-rest-length binding spring between any two points (e.g. hard-bound points on two rigid
+  /// bodies: a point joint, figure 13).
+  Index add_binding_spring(const BindingSpringSettings& settings);
+  /// Adds a force; validates its indices now.
+  template <typename F>
+  F& add_force(std::unique_ptr<F> force) {
+    F& ref = *force;
+    add_force_impl(std::move(force));
+    return ref;
+  }
+  void set_collision_hook(CollisionHook hook) { m_collision_hook = std::move(hook); }
+  StepSettings& step_settings() { return m_step_settings; }
+  const SystemSettings& settings() const { return m_settings; }
+
+  /// Resolves binding chains, distributes masses, computes effective masses and spring damping.
+  /// Called by the first step; idempotent. Topology changes afterwards throw.
+  void finalize();
+  bool finalized() const { return m_finalized; }
+
+  // ---- time stepping -------------------------------------------------------------------------
+  /// One Newmark step of size dt.
+  StepStats step(double dt);
+  /// Advances by frame_dt in equal substeps no larger than cfl * stable_dt().
+  StepStats advance(double frame_dt);
+  /// The explicit elastic forces' stable step (binding springs impose none).
+  double stable_dt();
+  double time() const { return m_time; }
+
+  // ---- state ---------------------------------------------------------------------------------
+  Particles& particles() { return m_particles; }
+  const Particles& particles() const { return m_particles; }
+  RigidBodyParticles& rigid_bodies() { return m_bodies; }
+  const RigidBodyParticles& rigid_bodies() const { return m_bodies; }
+  const HardBindings& hard_bindings() const { return m_hard; }
+  const SoftBindings& soft_bindings() const { return m_soft; }
+  const BindingSprings& binding_springs() const { return m_springs; }
+  std::span<const std::unique_ptr<Force>> forces() const { return m_forces; }
+  /// The mass each particle was given at creation (before distribution to parents).
+  const VectorXd& input_mass() const { return m_input_mass; }
+  /// Effective mass of any row: mass for free rows, eq. 4 for bound ones, +inf for kinematic.
+  double effective_mass(Index particle) const;
+  /// Effective mass of a rigid-bound row along a unit direction n: 1 / (n^T K n).
+  double effective_mass_along(Index particle, const Vec3& n) const;
+
+  /// Applies impulse j at a particle: to itself if free, to its parents if hard-bound (section 2:
+  /// dv_i = w_i j / m_i, so the bound point's velocity changes by j / m_e), or to its rigid frame
+  /// (dv_c = j/m, dw = I^-1 (r x j)). Bound rows are re-clamped.
+  void apply_impulse(Index particle, const Vec3& j);
+
+  /// Recomputes hard-bound rows (x = W x_parents, v = W v_parents) after the caller moved parents.
+  void clamp_bound_rows();
+
+  // ---- diagnostics ------------------------------------------------------------------------------
+  /// Momentum of the parents (free particles and dynamic rigid bodies), optionally with the soft-
+  /// bound particles' duplicated mass.
+  Vec3 linear_momentum(bool include_soft = false) const;
+  /// Angular momentum about the origin, same members as linear_momentum.
+  Vec3 angular_momentum(bool include_soft = false) const;
+  double kinetic_energy(bool include_soft = false) const;
+  /// Elastic + binding-spring + gravitational potential energy (gravity relative to the origin).
+  double potential_energy();
+  /// Largest |x_b - W x| over hard-bound rows: zero by construction, measured to prove it.
+  double max_hard_binding_drift() const;
+  /// FNV-1a hash of every position, velocity and rigid state bit: two runs are identical iff equal.
+  std::uint64_t state_hash() const;
+
+ private:
+  friend class Newmark;
+  void add_force_impl(std::unique_ptr<Force> force);
+  void require_not_finalized(const char* what) const;
+  void absorb_bound_masses();
+  void compute_effective_masses();
+
+  SystemSettings m_settings;
+  StepSettings m_step_settings;
+  Particles m_particles;
+  VectorXd m_input_mass;
+  RigidBodyParticles m_bodies;
+  HardBindings m_hard;
+  SoftBindings m_soft;
+  BindingSprings m_springs;
+  std::vector<std::unique_ptr<Force>> m_forces;
+  CollisionHook m_collision_hook;
+  VectorXd m_inverse_effective_mass;  // per row, 0 for infinite mass
+  VectorXd m_effective_mass;          // per row, +inf for kinematic, m_e for bound rows
+  bool m_finalized = false;
+  double m_time = 0.0;
+  std::unique_ptr<Newmark> m_newmark;
+};
+
+}  // namespace sinew

@@ -1,0 +1,72 @@
+// The semi-implicit Newmark step of Sifakis et al. 2007, section 3.3 (internal to sinew::System).
+#pragma once
+
+#include "sinew/system.hpp"
+
+#include <Eigen/Core>
+
+#include <vector>
+
+namespace sinew {
+
+class Newmark {
+ public:
+  StepStats step(System& s, double dt);
+
+ private:
+  // The five steps of section 3.3, in order.
+  void implicit_half_velocity(System& s, double dt, StepStats& stats);   // 1: eq. 6-8
+  void advance_positions(System& s, double dt);                          // 2
+  void process_collisions(System& s, double dt);                         // 3
+  void backward_euler_velocity(System& s, double dt, StepStats& stats);  // 4
+  void extrapolate_velocity(System& s);                                  // 5
+
+  struct SolveResult {
+    int iterations = 0;
+    double residual = 0;
+    bool converged = true;
+  };
+  void allocate(const System& s);
+  void save_state(System& s);
+  /// World inertia of every body at the current orientations (the solve's configuration).
+  void update_body_inertias(const System& s);
+  /// f, wrench: explicit elastic + external forces at the current x, distributed to parents and
+  /// mapped onto soft particles, then the binding springs' -K x_springs, distributed. Returns the
+  /// sum of mapped forces.
+  Vec3 compute_forces(System& s, const Vectors3& x_springs);
+  /// c = M v_start + h F; rigid rows (m v + h f, L + h tau).
+  void build_rhs(const System& s, double h, const Vectors3& v_start, const Vectors3& body_v, const Vectors3& body_L);
+  /// Solves (M + h D + beta h K) y = c by preconditioned CG, y holding the initial guess.
+  SolveResult solve(System& s, double h, double beta, bool linear_solve);
+  void apply(System& s, double h, double beta, const GeneralizedVector& u, GeneralizedVector& out);
+  void build_preconditioner(System& s, double h, double beta, bool jacobi);
+  void precondition(const GeneralizedVector& r, GeneralizedVector& z) const;
+  void project(GeneralizedVector& u) const;
+  /// Copies each synchronized soft particle's target state into it (section 3.1).
+  void synchronize(System& s, bool positions, bool velocities);
+  /// Adds each synchronized soft row's force to its target row and clears the soft row.
+  void gather_synchronized(System& s, Vectors3& f) const;
+  /// Pushes collision drift of synchronized soft particles to their targets' parents (section 3.1).
+  void push_synchronized_drift(System& s);
+  void check_finite(const System& s, const char* phase) const;
+
+  bool m_allocated = false;
+  long m_step_count = 0;
+  Index m_n = 0, m_r = 0;
+  VectorXd m_dof_mass;      // mass of dynamic rows, 0 elsewhere
+  VectorXd m_dynamic_mask;  // 1 on dynamic rows, 0 elsewhere
+  std::vector<std::uint8_t> m_dynamic_body;
+  Vectors3 m_x_n, m_v_n, m_x_np1, m_v_tilde_n, m_v_half;
+  Vectors3 m_f, m_g, m_tmp_v, m_apply_f;
+  Vectors6 m_wrench, m_apply_wrench;
+  Vectors3 m_body_x_n, m_body_v_n, m_body_w_n, m_body_L_n, m_body_x_np1;
+  std::vector<Quat> m_body_q_n, m_body_q_np1;
+  std::vector<Mat3> m_body_I;
+  std::vector<Eigen::Matrix<double, 6, 6>> m_body_preconditioner;
+  VectorXd m_diag, m_inverse_diag;
+  GeneralizedVector m_c, m_y, m_r_vec, m_z, m_p, m_q;
+  std::vector<CollisionConstraint> m_constraints;
+  bool m_has_damping = false;
+};
+
+}  // namespace sinew
