@@ -1,1 +1,155 @@
+// The semi-implicit Newmark step (Sifakis et al. 2007, section 3.3) against closed-form solutions.
+#include "sinew/system.hpp"
+#include "test_forces_local.hpp"
+#include "test_util.hpp"
+
+#include <Eigen/Eigenvalues>
 #include <gtest/gtest.h>
+
+#include <cmath>
+#include <numbers>
+
+namespace sinew {
+namespace {
+
+const SystemSettings kNoGravity{Vec3::Zero(), true};
+
+// x'' + (c/m) x' + (k/m) x = 0 from x(0) = 1, v(0) = 0 (underdamped).
+double oscillator(double k, double c, double m, double t) {
+  const double zeta = c / (2 * std::sqrt(k * m)), w0 = std::sqrt(k / m);
+  const double wd = w0 * std::sqrt(1 - zeta * zeta);
+  return std::exp(-zeta * w0 * t) * (std::cos(wd * t) + zeta * w0 / wd * std::sin(wd * t));
+}
+
+double oscillator_error(double k, double c, double dt, double end) {
+  System s(kNoGravity);
+  s.step_settings().cg_tolerance = 1e-14;
+  const Index p = s.add_particle(Vec3(1, 0, 0), Vec3::Zero(), 1.0);
+  s.add_force(std::make_unique<test::AnchorSprings>(std::vector<Index>{p}, Vectors3::Zero(3, 1), k, c));
+  const int steps = static_cast<int>(std::lround(end / dt));
+  for (int i = 0; i < steps; ++i) s.step(dt);
+  return std::abs(s.particles().x(0, p) - oscillator(k, c, 1.0, end));
+}
+
+TEST(Newmark, UndampedOscillatorConvergesAtSecondOrder) {
+  const double k = 4 * std::numbers::pi * std::numbers::pi;  // period 1 s
+  const double e1 = oscillator_error(k, 0.0, 0.01, 1.3), e2 = oscillator_error(k, 0.0, 0.005, 1.3),
+               e3 = oscillator_error(k, 0.0, 0.0025, 1.3);
+  EXPECT_NEAR(std::log2(e1 / e2), 2.0, 0.1);
+  EXPECT_NEAR(std::log2(e2 / e3), 2.0, 0.1);
+}
+
+TEST(Newmark, DampedOscillatorConvergesAtSecondOrder) {
+  const double k = 4 * std::numbers::pi * std::numbers::pi, c = 1.5;
+  const double e1 = oscillator_error(k, c, 0.01, 1.3), e2 = oscillator_error(k, c, 0.005, 1.3),
+               e3 = oscillator_error(k, c, 0.0025, 1.3);
+  EXPECT_NEAR(std::log2(e1 / e2), 2.0, 0.1);
+  EXPECT_NEAR(std::log2(e2 / e3), 2.0, 0.1);
+}
+
+TEST(Newmark, ConstantForceIsIntegratedExactly) {
+  System s;  // gravity
+  const Index p = s.add_particle(Vec3::Zero(), Vec3(1, 2, 0), 2.0);
+  const double dt = 1.0 / 60;
+  for (int i = 0; i < 60; ++i) s.step(dt);
+  const double t = 60 * dt;
+  const Vec3 expected = Vec3(1, 2, 0) * t + 0.5 * s.settings().gravity * t * t;
+  EXPECT_NEAR((s.particles().x.col(p) - expected).norm(), 0.0, 1e-12);
+}
+
+TEST(Newmark, SceneWithoutImplicitTermsRunsNoLinearSolve) {
+  System s;
+  const Index p = s.add_particle(Vec3::Zero(), Vec3::Zero(), 1.0);
+  s.add_force(std::make_unique<test::AnchorSprings>(std::vector<Index>{p}, Vectors3::Zero(3, 1), 10.0, 0.0));
+  const StepStats stats = s.step(0.01);
+  EXPECT_FALSE(stats.linear_solve);
+  EXPECT_EQ(stats.cg_iterations_step1 + stats.cg_iterations_step4, 0);
+}
+
+// One particle (m = 1) on a binding spring to a fixed kinematic point at the origin, in 1-D.
+struct SingleSpring {
+  System s{kNoGravity};
+  Index p, anchor;
+  SingleSpring(double k, double zeta, BindingSpringStep4 mode) {
+    p = s.add_particle(Vec3(1, 0, 0), Vec3::Zero(), 1.0);
+    anchor = s.add_kinematic_particle(Vec3::Zero());
+    s.add_binding_spring({p, anchor, k, zeta});
+    s.step_settings().binding_springs_in_step4 = mode;
+    s.step_settings().cg_tolerance = 1e-15;
+  }
+  void set(double x, double v) {
+    s.particles().x(0, p) = x;
+    s.particles().v(0, p) = v;
+  }
+};
+
+// The step is linear in (x, v) for one spring: its amplification matrix, column by column.
+double spectral_radius(double k, double zeta, double dt, BindingSpringStep4 mode) {
+  Eigen::Matrix2d A;
+  for (int column = 0; column < 2; ++column) {
+    SingleSpring one(k, zeta, mode);
+    one.set(column == 0 ? 1.0 : 0.0, column == 1 ? 1.0 : 0.0);
+    one.s.step(dt);
+    A(0, column) = one.s.particles().x(0, one.p);
+    A(1, column) = one.s.particles().v(0, one.p);
+  }
+  return A.eigenvalues().cwiseAbs().maxCoeff();
+}
+
+TEST(BindingSpring, ImplicitUpdateMatchesEq8) {
+  const double k = 1e12, dt = 1.0 / 30, h = dt / 2;
+  SingleSpring one(k, 1.0, BindingSpringStep4::explicit_half_step);
+  one.set(1.0, 0.5);
+  one.s.finalize();
+  const double c = one.s.binding_springs().damping(0);
+  EXPECT_NEAR(c, 2.0 * std::sqrt(k * 1.0), 1e-6);  // critical for mu = m = 1 (anchor mass infinite)
+  one.s.step(dt);
+  // eq. 8: (1 + h c/m + h^2 k/m) v~ = v - h k x / m;  x^{n+1} = x^n + dt v~.
+  const double v_tilde = (0.5 - h * k * 1.0) / (1 + h * c + h * h * k);
+  EXPECT_NEAR(one.s.particles().x(0, one.p), 1.0 + dt * v_tilde, 1e-12);
+}
+
+TEST(BindingSpring, VeryStiffSpringStaysBoundedAndConverges) {
+  // k = 1e12 at dt = 1/30 (k dt^2 ~ 1e9), critically damped, released 1 m from its target.
+  const double k = 1e12, dt = 1.0 / 30, h = dt / 2;
+  for (auto mode : {BindingSpringStep4::explicit_half_step, BindingSpringStep4::implicit_half_step}) {
+    SingleSpring one(k, 1.0, mode);
+    double largest = 0.0;
+    const int steps = 200000;
+    for (int i = 0; i < steps; ++i) {
+      one.s.step(dt);
+      largest = std::max(largest, one.s.particles().x.col(one.p).norm());
+    }
+    EXPECT_LE(largest, 1.0) << "mode " << static_cast<int>(mode);
+    EXPECT_LT(one.s.particles().x.col(one.p).norm(), 1e-4) << "mode " << static_cast<int>(mode);
+  }
+  // As printed, the step's amplification matrix for one spring (m = 1, s = h^2 k, e = h c) works out
+  // to det = (1 + s - e)/(1 + s + e) and trace = 2(1 - s)/(1 + s + e): complex eigenvalues of modulus
+  // sqrt(det) < 1. Stable for every k, but a stiff mode is damped only by e/s = 2 sqrt(m/k)/h per
+  // step, like any trapezoidal scheme: the particle flips across its target while it converges.
+  const double c = 2 * std::sqrt(k), s = h * h * k, e = h * c;
+  EXPECT_NEAR(spectral_radius(k, 1.0, dt, BindingSpringStep4::explicit_half_step), std::sqrt((1 + s - e) / (1 + s + e)), 1e-7);
+}
+
+TEST(BindingSpring, UndampedSpringIsNeutralWithHalfStepPosition) {
+  // As printed (step 4 explicit at x^{n+1/2}) an undamped zero-length spring neither gains nor loses.
+  // Round-off: h^2 k is 2.8e8, so 1e-7 is a few ulps of the largest term.
+  EXPECT_NEAR(spectral_radius(1e12, 0.0, 1.0 / 30, BindingSpringStep4::explicit_half_step), 1.0, 1e-7);
+}
+
+TEST(BindingSpring, EvaluatingStep4AtEndOfStepIsUnstable) {
+  // Section 3.3: x^{n+1} in step 4 restricts dt < (b + sqrt(b^2 + 8 mu k)) / 2k, about 2.7e-6 s here.
+  EXPECT_GT(spectral_radius(1e12, 1.0, 1.0 / 30, BindingSpringStep4::explicit_end_of_step), 1.005);
+  SingleSpring one(1e12, 1.0, BindingSpringStep4::explicit_end_of_step);
+  double growth = 0.0;
+  try {
+    for (int i = 0; i < 2000; ++i) one.s.step(1.0 / 30);
+    growth = one.s.particles().x.col(one.p).norm();
+  } catch (const Error&) {
+    growth = kInfinity;  // overflowed: stopped by the non-finite check, which is also growth
+  }
+  EXPECT_GT(growth, 1e3);
+}
+
+}  // namespace
+}  // namespace sinew

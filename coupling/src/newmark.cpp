@@ -233,7 +233,7 @@ void Newmark::backward_euler_velocity(System& s, double dt, StepStats& stats) {
 
   t = Clock::now();
   const double beta = mode == BindingSpringStep4::implicit_half_step ? h : 0.0;
-  const bool linear_solve = m_has_damping || (beta > 0.0 && s.m_springs.size() > 0);
+  const bool linear_solve = m_has_damping || s.m_springs.size() > 0;  // binding springs always damp
   const SolveResult result = solve(s, h, beta, linear_solve);
   stats.ms.cg += ms_since(t);
   stats.cg_iterations_step4 += result.iterations;

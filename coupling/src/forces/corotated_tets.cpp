@@ -1,1 +1,210 @@
-// placeholder
+// Corotated linear elasticity on linear tets with inversion handling (Irving, Teran and Fedkiw
+// 2004, "Invertible finite elements for robust simulation of large deformation", sections 4-5;
+// the differential in the SVD frame follows Teran, Sifakis, Irving and Fedkiw 2005, section 5).
+//
+// With Ds = [x1 - x0, x2 - x0, x3 - x0], F = Ds Dm^-1 = U Sigma V^T (signed SVD: U, V rotations,
+// the smallest singular value negative when det F < 0), and V_e the rest volume:
+//   Psi    = V_e [mu sum_i (sigma_i - 1)^2 + lambda/2 (sum_i sigma_i - 3)^2]
+//   Phat_i = 2 mu (sigma_i - 1) + lambda (sum_k sigma_k - 3),   P = U Phat V^T
+//   [f1 f2 f3] = -V_e P Dm^-T,   f0 = -(f1 + f2 + f3)
+// The signed SVD makes Psi a function of F that keeps growing through inversion, so an inverted
+// tet is pushed back through its smallest stretch instead of settling as a reflected copy.
+//
+// Differential, dFhat = U^T dF V, dP = U dPhat V^T:
+//   dPhat_ii = sum_j (2 mu delta_ij + lambda) dFhat_jj
+//   [dPhat_ij]   [A B] [dFhat_ij]      A + B = (Phat_i - Phat_j) / (sigma_i - sigma_j) = 2 mu
+//   [dPhat_ji] = [B A] [dFhat_ji],     A - B = (Phat_i + Phat_j) / (sigma_i + sigma_j)
+// A + B is exactly 2 mu for this model, so the sigma_i = sigma_j case needs no limit. A - B is
+// genuinely unbounded as sigma_i + sigma_j -> 0 (two signed stretches cancelling: the rotation
+// U V^T is not differentiable there), so |sigma_i + sigma_j| is clamped to >= 1e-6 keeping its
+// sign; the differential is exact everywhere else and stays finite there.
+//
+// Damping is stiffness-proportional in strain-rate form with the rotation frozen at R = U V^T:
+//   D(v) = V_e beta (mu |Edot|^2 + lambda/2 tr(Edot)^2),  Edot = sym(R^T Fdot),  Fdot = Vs Dm^-1,
+//   f = -dD/dv = -V_e beta R (2 mu Edot + lambda tr(Edot) I) Dm^-T,
+// a positive semi-definite form in v (lambda > -2 mu / 3 since nu > -1), so D is symmetric negative
+// semi-definite; rigid motion (R^T Fdot skew) is not damped. At rest it is exactly -beta K.
+#include "sinew/forces/corotated_tets.hpp"
+
+#include "element_support.hpp"
+#include "signed_svd.hpp"
+
+#include <algorithm>
+#include <utility>
+
+namespace sinew {
+
+namespace {
+
+constexpr std::string_view kName = "corotated tets";
+// A tet whose volume is at round-off level of its longest edge cubed has no usable Dm^-1.
+constexpr double kDegenerateRelative = 1.0e-12;
+// Floor on |sigma_i + sigma_j| in the differential (see the comment at the top).
+constexpr double kSigmaSumFloor = 1.0e-6;
+
+Mat3 edge_matrix(const Vectors3& x, const std::array<Index, 4>& v) {
+  Mat3 ds;
+  ds.col(0) = x.col(v[1]) - x.col(v[0]);
+  ds.col(1) = x.col(v[2]) - x.col(v[0]);
+  ds.col(2) = x.col(v[3]) - x.col(v[0]);
+  return ds;
+}
+
+/// Scatters H = [f1 f2 f3] (3x3) to the four vertices, f0 = -(f1 + f2 + f3).
+void scatter_h(const std::array<Index, 4>& v, const Mat3& h, Vectors3& f) {
+  f.col(v[0]) -= h.rowwise().sum();
+  f.col(v[1]) += h.col(0);
+  f.col(v[2]) += h.col(1);
+  f.col(v[3]) += h.col(2);
+}
+
+Vec3 diagonal_stress(const Vec3& sigma, double mu, double lambda) {
+  return 2.0 * mu * (sigma.array() - 1.0).matrix() + Vec3::Constant(lambda * (sigma.sum() - 3.0));
+}
+
+}  // namespace
+
+CorotatedTets::CorotatedTets(std::vector<Tet> tets, const Vectors3& rest_x, const CorotatedTetsSettings& settings)
+    : m_tets(std::move(tets)), m_settings(settings) {
+  detail::check_non_negative(kName, "young_modulus", m_settings.young_modulus);
+  if (m_settings.young_modulus == 0.0) fail(kName, ": young_modulus is 0, expected > 0");
+  const double nu = m_settings.poisson_ratio;
+  if (std::isnan(nu)) fail(kName, ": poisson_ratio is nan");
+  if (!(nu > -1.0 && nu < 0.5)) fail(kName, ": poisson_ratio ", nu, " is outside (-1, 0.5)");
+  detail::check_non_negative(kName, "beta", m_settings.beta);
+  const double young = m_settings.young_modulus;
+  m_mu = young / (2.0 * (1.0 + nu));
+  m_lambda = young * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
+
+  const Index n = rest_x.cols();
+  const std::size_t count = m_tets.size();
+  m_dm_inv.resize(count);
+  m_volume.resize(count);
+  m_dt_weights.resize(count);
+  m_state.resize(count);
+  // Rest stiffness bound (see element_bound_stable_dt): at rest F = I and
+  //   dx^T K_e dx = V_e (2 mu |sym dF|^2 + lambda tr(dF)^2) <= V_e (2 mu + max(lambda, 0)) |dF|^2,
+  // the P-wave modulus, and |dF|^2 = |sum_a dx_a g_a^T|^2 <= (sum_a |g_a|^2 / m_a) |dx|_M^2 by
+  // Cauchy-Schwarz, with |g_a| = 1 / (altitude at vertex a). Hence w_{e,a} = V_e (2 mu + lambda+) |g_a|^2.
+  const double modulus = 2.0 * m_mu + std::max(m_lambda, 0.0);
+  for (std::size_t e = 0; e < count; ++e) {
+    const Tet& v = m_tets[e];
+    detail::check_element_indices("tet", e, v, n);
+    detail::check_rest_positions("tet", e, v, rest_x);
+    const Mat3 dm = edge_matrix(rest_x, v);
+    const double volume = dm.determinant() / 6.0;
+    const double longest = std::max({dm.col(0).norm(), dm.col(1).norm(), dm.col(2).norm(),
+                                     (dm.col(1) - dm.col(0)).norm(), (dm.col(2) - dm.col(0)).norm(),
+                                     (dm.col(2) - dm.col(1)).norm()});
+    const double threshold = kDegenerateRelative * longest * longest * longest;
+    if (volume < -threshold) fail("tet ", e, " is inverted (volume ", volume, ")");
+    if (!(volume > threshold)) fail("tet ", e, " is degenerate (volume ", volume, ")");
+    m_dm_inv[e] = dm.inverse();
+    m_volume[e] = volume;
+    m_state[e] = {Mat3::Identity(), Mat3::Identity(), Mat3::Identity(), Vec3::Ones(), Vec3::Zero()};
+    const Mat3& g = m_dm_inv[e];  // rows 0-2: shape-function gradients of vertices 1-3
+    m_dt_weights[e] = {volume * modulus * g.colwise().sum().squaredNorm(), volume * modulus * g.row(0).squaredNorm(),
+                       volume * modulus * g.row(1).squaredNorm(), volume * modulus * g.row(2).squaredNorm()};
+  }
+  detail::Incidence incidence = detail::Incidence::build(m_tets, detail::index_span(m_tets));
+  m_incidence_offsets = std::move(incidence.offsets);
+  m_incidence = std::move(incidence.elements);
+}
+
+void CorotatedTets::validate(Index particle_count) const {
+  for (std::size_t e = 0; e < m_tets.size(); ++e) detail::check_element_indices("tet", e, m_tets[e], particle_count);
+}
+
+void CorotatedTets::update_position_state(const Vectors3& x) {
+  for (std::size_t e = 0; e < m_tets.size(); ++e) {
+    const detail::SignedSvd svd = detail::signed_svd(edge_matrix(x, m_tets[e]) * m_dm_inv[e]);
+    TetState& s = m_state[e];
+    s.U = svd.U;
+    s.V = svd.V;
+    s.R = svd.U * svd.V.transpose();
+    s.sigma = svd.sigma;
+    s.phat = diagonal_stress(svd.sigma, m_mu, m_lambda);
+  }
+}
+
+double CorotatedTets::potential_energy(const Vectors3& x) const {
+  double energy = 0.0;
+  for (std::size_t e = 0; e < m_tets.size(); ++e) {
+    const Vec3 sigma = detail::signed_svd(edge_matrix(x, m_tets[e]) * m_dm_inv[e]).sigma;
+    const double volumetric = sigma.sum() - 3.0;
+    energy += m_volume[e] * (m_mu * (sigma.array() - 1.0).square().sum() + 0.5 * m_lambda * volumetric * volumetric);
+  }
+  return energy;
+}
+
+void CorotatedTets::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
+  for (std::size_t e = 0; e < m_tets.size(); ++e) {
+    const detail::SignedSvd svd = detail::signed_svd(edge_matrix(x, m_tets[e]) * m_dm_inv[e]);
+    const Mat3 P = svd.U * diagonal_stress(svd.sigma, m_mu, m_lambda).asDiagonal() * svd.V.transpose();
+    scatter_h(m_tets[e], (-m_volume[e]) * P * m_dm_inv[e].transpose(), f);
+  }
+}
+
+void CorotatedTets::add_elastic_differentials(const Vectors3& dx, Vectors3& df) const {
+  constexpr int kPairs[3][2] = {{0, 1}, {0, 2}, {1, 2}};
+  for (std::size_t e = 0; e < m_tets.size(); ++e) {
+    const TetState& s = m_state[e];
+    const Mat3 dF_hat = s.U.transpose() * (edge_matrix(dx, m_tets[e]) * m_dm_inv[e]) * s.V;
+    Mat3 dP_hat;
+    const double trace = m_lambda * dF_hat.trace();
+    for (int i = 0; i < 3; ++i) dP_hat(i, i) = 2.0 * m_mu * dF_hat(i, i) + trace;
+    for (const auto& pair : kPairs) {
+      const int i = pair[0];
+      const int j = pair[1];
+      double sum = s.sigma(i) + s.sigma(j);
+      if (std::abs(sum) < kSigmaSumFloor) sum = sum < 0.0 ? -kSigmaSumFloor : kSigmaSumFloor;
+      const double half_a_minus_b = 0.5 * (s.phat(i) + s.phat(j)) / sum;
+      const double a = m_mu + half_a_minus_b;  // (A + B) / 2 = mu
+      const double b = m_mu - half_a_minus_b;
+      dP_hat(i, j) = a * dF_hat(i, j) + b * dF_hat(j, i);
+      dP_hat(j, i) = b * dF_hat(i, j) + a * dF_hat(j, i);
+    }
+    const Mat3 dP = s.U * dP_hat * s.V.transpose();
+    scatter_h(m_tets[e], (-m_volume[e]) * dP * m_dm_inv[e].transpose(), df);
+  }
+}
+
+void CorotatedTets::add_damping_forces(const Vectors3& v, Vectors3& f) const {
+  const double beta = m_settings.beta;
+  if (beta == 0.0) return;
+  for (std::size_t e = 0; e < m_tets.size(); ++e) {
+    const Mat3& R = m_state[e].R;
+    const Mat3 RtFdot = R.transpose() * (edge_matrix(v, m_tets[e]) * m_dm_inv[e]);
+    const Mat3 Edot = 0.5 * (RtFdot + RtFdot.transpose());
+    const Mat3 Sdot = 2.0 * m_mu * Edot + (m_lambda * Edot.trace()) * Mat3::Identity();
+    scatter_h(m_tets[e], (-m_volume[e] * beta) * R * Sdot * m_dm_inv[e].transpose(), f);
+  }
+}
+
+// For vertex a alone moving with v, Fdot = v g_a^T and, with u = R^T v (|u| = |v|),
+//   |Edot|^2 = (|u|^2 |g_a|^2 + (u.g_a)^2) / 2,  tr(Edot) = u.g_a,
+// so the trace of the 3x3 block -D_aa is V_e beta |g_a|^2 (3 mu + mu + lambda), independent of R.
+void CorotatedTets::add_damping_diagonal(VectorXd& diag) const {
+  const double beta = m_settings.beta;
+  if (beta == 0.0) return;
+  const double modulus = 4.0 * m_mu + m_lambda;
+  for (std::size_t e = 0; e < m_tets.size(); ++e) {
+    const Mat3& g = m_dm_inv[e];
+    const double scale = m_volume[e] * beta * modulus / 3.0;
+    const Tet& v = m_tets[e];
+    diag[v[0]] += scale * g.colwise().sum().squaredNorm();
+    diag[v[1]] += scale * g.row(0).squaredNorm();
+    diag[v[2]] += scale * g.row(1).squaredNorm();
+    diag[v[3]] += scale * g.row(2).squaredNorm();
+  }
+}
+
+// Conservative bound from the rest linearisation (P-wave modulus over squared altitudes, argument
+// in the constructor and element_bound_stable_dt); large compression or stretch can change the
+// stiffness, which this estimate ignores.
+double CorotatedTets::stable_dt(const VectorXd& m_eff) const {
+  detail::check_mass_count(kName, m_eff, static_cast<Index>(m_incidence_offsets.size()) - 1);
+  return detail::element_bound_stable_dt(m_tets, m_dt_weights, m_incidence_offsets, m_incidence, m_eff);
+}
+
+}  // namespace sinew

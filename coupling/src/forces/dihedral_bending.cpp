@@ -29,6 +29,7 @@
 
 #include <algorithm>
 #include <numbers>
+#include <tuple>
 #include <utility>
 
 namespace sinew {
