@@ -6,7 +6,6 @@
 #include "sinew/forces/triangle_membrane.hpp"
 
 #include <gtest/gtest.h>
-#include <iostream>
 
 #include <Eigen/Eigenvalues>
 
@@ -138,7 +137,6 @@ void expect_force_is_negative_energy_gradient(const Force& force, const Vectors3
     minus_gradient.data()[k] = -(force.potential_energy(xp) - force.potential_energy(xm)) / (2.0 * eps);
   }
   ASSERT_GT(flat(f).norm(), 0.0);
-  std::cout << "  grad err " << relative_error(f, minus_gradient) << "\n";
   EXPECT_LT(relative_error(f, minus_gradient), 1e-6);
 }
 
@@ -150,7 +148,6 @@ void expect_differential_matches_finite_differences(Force& force, const Vectors3
     const Vectors3 df = differentials(force, dx);
     const Vectors3 fd = (elastic_forces(force, x + eps * dx) - elastic_forces(force, x - eps * dx)) / (2.0 * eps);
     ASSERT_GT(flat(fd).norm(), 0.0);
-    std::cout << "  diff err " << relative_error(df, fd) << "\n";
     EXPECT_LT(relative_error(df, fd), 1e-6) << "trial " << trial;
   }
 }
@@ -251,7 +248,6 @@ double exact_stable_dt(Force& force, const Vectors3& rest, const VectorXd& m) {
 void expect_stable_dt_conservative_within_10x(Force& force, const Vectors3& rest, const VectorXd& m) {
   const double exact = exact_stable_dt(force, rest, m);
   const double estimate = force.stable_dt(m);
-  std::cout << "  dt est/exact " << estimate / exact << "\n";
   EXPECT_LE(estimate, exact * (1.0 + 1e-12));
   EXPECT_GE(estimate, 0.1 * exact);
 }

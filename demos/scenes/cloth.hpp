@@ -1,0 +1,58 @@
+// Scene builders shared by the demos, the benchmarks and the tests: a scene is written once.
+#pragma once
+
+#include "sinew/system.hpp"
+
+#include <array>
+#include <vector>
+
+namespace sinew::scenes {
+
+struct ClothGridSettings {
+  int nx = 40;                         ///< nodes along the width
+  int ny = 40;                         ///< nodes along the height
+  double width = 2.0;                  ///< [m]
+  double height = 2.0;                 ///< [m]
+  double mass = 0.5;                   ///< total [kg], lumped by area
+  Vec3 origin = Vec3(-1.0, 2.0, 0.0);  ///< position of node (0, 0), the top-left corner
+  Vec3 across = Vec3::UnitX();         ///< direction of increasing i
+  Vec3 down = -Vec3::UnitY();          ///< direction of increasing j
+  double stretch_stiffness = 200.0;    ///< edge springs k [N/m]; 0 leaves them out
+  double stretch_damping = 0.05;       ///< edge springs b [N s/m]
+  double bending_stiffness = 1e-4;     ///< dihedral bending k_b [N m]; 0 leaves it out
+  double bending_damping = 0.0;
+  double membrane_mu = 0.0;            ///< StVK membrane [N/m]; 0 leaves it out
+  double membrane_lambda = 0.0;
+  double membrane_damping = 0.0;       ///< strain-rate damping [s]
+};
+
+struct ClothGrid {
+  int nx = 0, ny = 0;
+  std::vector<Index> nodes;  ///< particle index of node (i, j) at [j * nx + i]
+  std::vector<std::array<Index, 3>> triangles;
+  Index node(int i, int j) const { return nodes[static_cast<std::size_t>(j) * nx + i]; }
+};
+
+/// Adds a rectangular cloth to the system: particles with area-lumped masses and the forces the
+/// settings ask for (edge springs on the triangle edges, dihedral bending, StVK membrane).
+ClothGrid add_cloth_grid(System& system, const ClothGridSettings& settings);
+
+/// The core scene of the benchmark and the core demo: a cloth hung by its top row from a dynamic
+/// rigid rod through implicit binding springs between each top node and a point on the rod; the rod
+/// hangs from two fixed anchors by binding springs at its ends; a sideways push starts a swing.
+struct HangingClothSettings {
+  ClothGridSettings cloth;
+  double rod_mass = 0.5;                ///< [kg]
+  double binding_stiffness = 1e5;       ///< [N/m], critically damped
+  double initial_speed = 1.0;           ///< sideways (along the cloth normal) [m/s]
+};
+
+struct HangingCloth {
+  ClothGrid cloth;
+  Index rod = -1;
+  std::vector<Index> rod_points;  ///< hard-bound points on the rod, one per top node
+};
+
+HangingCloth add_hanging_cloth(System& system, const HangingClothSettings& settings);
+
+}  // namespace sinew::scenes
