@@ -1,1 +1,293 @@
+// Whole-system behaviour: conservation, determinism, T-junctions, convergence, allocation and errors.
+#include "cloth.hpp"
+#include "sinew/forces/corotated_tets.hpp"
+#include "sinew/forces/edge_springs.hpp"
+#include "sinew/system.hpp"
+#include "test_forces_local.hpp"
+#include "test_util.hpp"
+
 #include <gtest/gtest.h>
+
+#include <array>
+#include <atomic>
+#include <cstdlib>
+#include <new>
+
+// Counts heap allocations while armed, to show the step allocates nothing after its first call.
+namespace {
+std::atomic<bool> g_count_allocations{false};
+std::atomic<long> g_allocations{0};
+}  // namespace
+void* operator new(std::size_t size) {
+  if (g_count_allocations.load(std::memory_order_relaxed)) g_allocations.fetch_add(1, std::memory_order_relaxed);
+  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
+  throw std::bad_alloc();
+}
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+
+namespace sinew {
+namespace {
+
+const SystemSettings kNoGravity{Vec3::Zero(), true};
+
+// A free-floating system: a cloth partly hard-bound to a spinning, tumbling rigid body, partly tied
+// to points of the body by binding springs, with synchronized soft duplicates of two nodes.
+struct FloatingScene {
+  System system{kNoGravity};
+  scenes::ClothGrid cloth;
+  Index body = -1;
+
+  explicit FloatingScene(double zeta) {
+    RigidBodySettings rb;
+    rb.x = Vec3(0.1, 0.2, -0.1);
+    rb.q = Quat(Eigen::AngleAxisd(0.3, Vec3(1, 2, 3).normalized()));
+    rb.v = Vec3(0.1, -0.05, 0.02);
+    rb.w = Vec3(0.3, 2.0, 0.5);
+    rb.mass = 1.0;
+    rb.inertia = Vec3(0.1, 0.2, 0.25);
+    body = system.add_rigid_body(rb);
+    scenes::ClothGridSettings c;
+    c.nx = c.ny = 6;
+    c.width = c.height = 0.5;
+    c.mass = 0.2;
+    c.origin = Vec3(-0.25, 0.3, 0.0);
+    c.stretch_stiffness = 50.0;
+    c.stretch_damping = 0.1;
+    c.bending_stiffness = 1e-4;
+    c.bending_damping = 1e-5;
+    cloth = scenes::add_cloth_grid(system, c);
+    for (int i = 0; i < 3; ++i) system.bind_rigid_here(cloth.node(i, 0), body);
+    for (int i = 3; i < 6; ++i) {
+      const Index point = system.add_particle(system.particles().x.col(cloth.node(i, 0)) + Vec3(0, 0.01, 0), Vec3::Zero(), 0.0);
+      system.bind_rigid_here(point, body);
+      system.add_binding_spring({cloth.node(i, 0), point, 1e4, zeta});
+    }
+    for (int i : {2, 4}) {
+      const Index target = cloth.node(i, 3);
+      const Index soft = system.add_particle(system.particles().x.col(target), Vec3::Zero(), 0.0);
+      system.add_soft_binding({soft, target, SoftCoupling::synchronized, 0.0, 0.0, 0.0});
+    }
+    system.step_settings().cg_tolerance = 1e-13;
+    system.finalize();
+    system.clamp_bound_rows();
+  }
+};
+
+TEST(System, FreeFloatingCoupledSystemConservesLinearMomentum) {
+  FloatingScene scene(1.0);
+  System& s = scene.system;
+  const Vec3 p0 = s.linear_momentum();
+  double worst = 0.0;
+  for (int i = 0; i < 1000; ++i) {
+    const StepStats stats = s.step(1e-3);
+    ASSERT_TRUE(stats.cg_converged);
+    worst = std::max(worst, (s.linear_momentum() - p0).norm());
+  }
+  // Every internal force comes in equal and opposite pairs through W^T, so only the CG residual
+  // (1e-13 m/s on ~1 kg) can change momentum.
+  EXPECT_LT(worst, 1e-10);
+  EXPECT_LT(s.max_hard_binding_drift(), 1e-12);
+}
+
+// Angular momentum is not an exact invariant of this Newmark step: with x^{n+1} = x^n + dt v~^{n+1/2}
+// and v^{n+1} = v~^n + dt a(x^{n+1/2}), the change per step is dt sum m v~^{n+1/2} x v^{n+1/2}
+// (torque-free forces drop out), O(dt^3). So it must stay small and shrink at second order over a
+// fixed time. (Binding-spring damping is zeta = 0 here: multidirectional damping -c(v_a - v_b) acting
+// at two separated points is a real torque, not an integration error.)
+TEST(System, FreeFloatingCoupledSystemKeepsAngularMomentumToSecondOrder) {
+  auto drift = [](double dt) {
+    FloatingScene scene(0.0);
+    System& s = scene.system;
+    const Vec3 l0 = s.angular_momentum();
+    double worst = 0.0;
+    const int steps = static_cast<int>(std::lround(1.0 / dt));
+    for (int i = 0; i < steps; ++i) {
+      s.step(dt);
+      worst = std::max(worst, (s.angular_momentum() - l0).norm());
+    }
+    return worst / l0.norm();
+  };
+  const double coarse = drift(2e-3), fine = drift(1e-3);
+  EXPECT_LT(coarse, 1e-3);
+  EXPECT_GT(coarse / fine, 3.0) << coarse << " vs " << fine;
+}
+
+// Spring-coupled soft particles duplicate mass, and the mapping duplicates momentum (section 3): the
+// total including them changes by exactly the mapped impulse the step reports.
+TEST(System, SoftParticleMomentumChangesOnlyByTheMappedImpulse) {
+  System t(kNoGravity);
+  scenes::ClothGridSettings c;
+  c.nx = c.ny = 5;
+  c.width = c.height = 0.4;
+  c.mass = 0.1;
+  scenes::ClothGrid cloth = scenes::add_cloth_grid(t, c);
+  for (Index n : cloth.nodes) t.particles().v.col(n) = test::random_vec3(0.2);
+  for (int i : {1, 3}) {
+    const Index target = cloth.node(i, 2);
+    const Index soft = t.add_particle(t.particles().x.col(target) + Vec3(0, 0, 0.01), Vec3::Zero(), 0.0);
+    t.add_soft_binding({soft, target, SoftCoupling::spring, 1e3, 1.0, 0.0});
+  }
+  t.step_settings().cg_tolerance = 1e-13;
+  t.finalize();
+  Vec3 expected = t.linear_momentum(true);
+  for (int i = 0; i < 300; ++i) expected += t.step(1e-3).mapped_impulse;
+  EXPECT_NEAR((t.linear_momentum(true) - expected).norm(), 0.0, 1e-11);
+  EXPECT_GT(expected.norm(), 0.0);
+}
+
+TEST(System, TwoRunsAreBitIdentical) {
+  auto run = [] {
+    System s;
+    scenes::HangingClothSettings settings;
+    settings.cloth.nx = settings.cloth.ny = 12;
+    scenes::add_hanging_cloth(s, settings);
+    for (int i = 0; i < 40; ++i) s.advance(1.0 / 60);
+    return s;
+  };
+  const System a = run(), b = run();
+  EXPECT_EQ(a.state_hash(), b.state_hash());
+  EXPECT_TRUE(a.particles().x == b.particles().x);
+  EXPECT_TRUE(a.particles().v == b.particles().v);
+  EXPECT_TRUE(a.rigid_bodies().w == b.rigid_bodies().w);
+}
+
+TEST(System, StepAllocatesNothingAfterItsFirstCall) {
+  System s;
+  scenes::HangingClothSettings settings;
+  settings.cloth.nx = settings.cloth.ny = 10;
+  scenes::add_hanging_cloth(s, settings);
+  const double dt = 0.9 * s.stable_dt();
+  g_allocations = 0;
+  g_count_allocations = true;
+  s.step(dt);  // the first call sets up scratch buffers: the counter must see it
+  g_count_allocations = false;
+  EXPECT_GT(g_allocations.load(), 0);
+  g_allocations = 0;
+  g_count_allocations = true;
+  for (int i = 0; i < 5; ++i) s.step(dt);
+  g_count_allocations = false;
+  EXPECT_EQ(g_allocations.load(), 0);
+}
+
+// Figure 5: a sheet with a T-junction, stretched. Unbound, the T-junction node leaves the coarse
+// edge it lies on and the mesh opens a gap; hard-bound to the edge's ends it stays on it exactly.
+TEST(System, TJunctionStaysOnItsEdgeUnderStretching) {
+  auto gap = [](bool bind) {
+    System s(kNoGravity);
+    //  D----C----G      coarse square A B C D on the left; the right half is refined, and its
+    //  |  / |  / |      node M at the middle of B-C is a T-junction (no left triangle uses it).
+    //  | /  M----F
+    //  |/   | \  |
+    //  A----B----E
+    const Index A = s.add_kinematic_particle(Vec3(0, 0, 0), Vec3(0, 0, 0));
+    const Index B = s.add_particle(Vec3(1, 0, 0), Vec3::Zero(), 0.1);
+    const Index C = s.add_particle(Vec3(1, 1, 0), Vec3::Zero(), 0.1);
+    const Index D = s.add_kinematic_particle(Vec3(0, 1, 0), Vec3(0, 0, 0));
+    const Index M = s.add_particle(Vec3(1, 0.5, 0), Vec3::Zero(), 0.05);
+    const Index E = s.add_kinematic_particle(Vec3(2, 0, 0), Vec3(0.3, -0.1, 0));
+    const Index F = s.add_kinematic_particle(Vec3(2, 0.5, 0), Vec3(0.4, 0.1, 0));
+    const Index G = s.add_kinematic_particle(Vec3(2, 1, 0), Vec3(0.3, 0.4, 0));
+    std::vector<EdgeSprings::Edge> edges{{A, B}, {B, C}, {C, D}, {D, A}, {A, C}, {B, E}, {E, F},
+                                         {F, G}, {G, C}, {B, M}, {M, C}, {M, F}, {B, F}, {M, G}};
+    s.add_force(std::make_unique<EdgeSprings>(edges, s.particles().x, EdgeSpringsSettings{100.0, 2.0}));
+    if (bind) {
+      const std::array<Index, 2> parents{B, C};
+      const std::array<double, 2> w{0.5, 0.5};
+      s.bind_linear(M, parents, w);
+    }
+    for (int i = 0; i < 500; ++i) s.step(2e-3);
+    const Vec3 b = s.particles().x.col(B), c = s.particles().x.col(C), m = s.particles().x.col(M);
+    return (m - b).cross(c - b).norm() / (c - b).norm();  // distance of M from the line B-C
+  };
+  EXPECT_LT(gap(true), 1e-14);
+  EXPECT_GT(gap(false), 1e-3);
+}
+
+TEST(Newmark, SpringChainConvergesAtSecondOrder) {
+  auto run = [](double dt) {
+    System s;  // gravity
+    std::vector<EdgeSprings::Edge> edges;
+    Index previous = s.add_kinematic_particle(Vec3::Zero());
+    for (int i = 1; i <= 6; ++i) {
+      const Index p = s.add_particle(Vec3(0.2 * i, -0.05 * i, 0), Vec3(0, 0, 0.3), 0.05);
+      edges.push_back({previous, p});
+      previous = p;
+    }
+    s.add_force(std::make_unique<EdgeSprings>(edges, s.particles().x, EdgeSpringsSettings{80.0, 0.05}));
+    s.step_settings().cg_tolerance = 1e-14;
+    const int steps = static_cast<int>(std::lround(0.5 / dt));
+    for (int i = 0; i < steps; ++i) s.step(dt);
+    return Vectors3(s.particles().x);
+  };
+  const Vectors3 reference = run(1e-3 / 16);
+  const double e1 = (run(1e-3) - reference).norm(), e2 = (run(5e-4) - reference).norm(), e3 = (run(2.5e-4) - reference).norm();
+  EXPECT_NEAR(std::log2(e1 / e2), 2.0, 0.15);
+  EXPECT_NEAR(std::log2(e2 / e3), 2.0, 0.15);
+}
+
+// ---- bad input ----------------------------------------------------------------------------------
+
+template <typename F>
+std::string error_of(F&& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "no error";
+}
+
+TEST(System, BadSettingsAreNamed) {
+  EXPECT_NE(error_of([] { System s; s.add_particle(Vec3::Zero(), Vec3::Zero(), -1.0); }).find("particle 0: mass -1"), std::string::npos);
+  EXPECT_NE(error_of([] {
+              System s;
+              for (int i = 0; i < 3; ++i) s.add_particle(Vec3::Random(), Vec3::Zero(), 1.0);
+              const std::array<Index, 2> parents{0, 1};
+              const std::array<double, 2> w{0.5, 0.43};
+              s.bind_linear(2, parents, w);
+            }).find("binding 0: weights sum to 0.93, expected 1"),
+            std::string::npos);
+  EXPECT_NE(error_of([] {
+              System s;
+              s.add_particle(Vec3::Zero(), Vec3::Zero(), 1.0);
+              s.add_particle(Vec3::UnitX(), Vec3::Zero(), 1.0);
+              s.add_binding_spring({0, 1, std::nan(""), 1.0});
+            }).find("binding spring 0: stiffness nan"),
+            std::string::npos);
+  EXPECT_NE(error_of([] {
+              System s;
+              RigidBodySettings rb;
+              rb.mass = std::nan("");
+              s.add_rigid_body(rb);
+            }).find("rigid body 0: mass nan"),
+            std::string::npos);
+  EXPECT_NE(error_of([] {
+              Vectors3 x(3, 4);
+              x << 0, 1, 0, 0.5, 0, 0, 1, 0.5, 0, 0, 0, 0;  // flat tet
+              CorotatedTets tets({{0, 1, 2, 3}}, x, CorotatedTetsSettings{});
+            }).find("tet 0"),
+            std::string::npos);
+  EXPECT_NE(error_of([] {
+              System s;
+              s.add_particle(Vec3::Zero(), Vec3::Zero(), 0.0);
+              s.finalize();
+            }).find("particle 0 has mass 0"),
+            std::string::npos);
+  EXPECT_NE(error_of([] { System s; s.step(std::nan("")); }).find("dt nan"), std::string::npos);
+}
+
+TEST(System, NonFiniteStateStopsTheStepNamingPhaseAndParticle) {
+  System s;
+  s.add_particle(Vec3::Zero(), Vec3::Zero(), 1.0);
+  const Index p = s.add_particle(Vec3::UnitX(), Vec3::Zero(), 1.0);
+  Vectors3 anchor(3, 1);
+  anchor.col(0) = Vec3(std::nan(""), 0, 0);
+  s.add_force(std::make_unique<test::AnchorSprings>(std::vector<Index>{p}, anchor, 1.0, 0.0));
+  const std::string message = error_of([&] { s.step(0.01); });
+  EXPECT_NE(message.find("step 1"), std::string::npos) << message;
+  EXPECT_NE(message.find("particle 1"), std::string::npos) << message;
+}
+
+}  // namespace
+}  // namespace sinew

@@ -41,6 +41,10 @@ System::~System() = default;
 System::System(System&&) noexcept = default;
 System& System::operator=(System&&) noexcept = default;
 
+void System::require_finalized(const char* what) const {
+  if (!m_finalized) fail(what, ": finalize the system first (masses are set up there)");
+}
+
 void System::require_not_finalized(const char* what) const {
   if (m_finalized) fail("cannot ", what, " after the system is finalized (its first step)");
 }
@@ -344,6 +348,7 @@ bool counts_for_momentum(ParticleKind kind, bool include_soft) {
 }  // namespace
 
 Vec3 System::linear_momentum(bool include_soft) const {
+  require_finalized("momentum and energy");
   Vec3 p = Vec3::Zero();
   for (Index i = 0; i < m_particles.size(); ++i)
     if (counts_for_momentum(m_particles.kind[i], include_soft)) p += m_particles.mass[i] * m_particles.v.col(i);
@@ -353,6 +358,7 @@ Vec3 System::linear_momentum(bool include_soft) const {
 }
 
 Vec3 System::angular_momentum(bool include_soft) const {
+  require_finalized("momentum and energy");
   Vec3 l = Vec3::Zero();
   for (Index i = 0; i < m_particles.size(); ++i)
     if (counts_for_momentum(m_particles.kind[i], include_soft))
@@ -364,6 +370,7 @@ Vec3 System::angular_momentum(bool include_soft) const {
 }
 
 double System::kinetic_energy(bool include_soft) const {
+  require_finalized("momentum and energy");
   double e = 0.0;
   for (Index i = 0; i < m_particles.size(); ++i)
     if (counts_for_momentum(m_particles.kind[i], include_soft)) e += 0.5 * m_particles.mass[i] * m_particles.v.col(i).squaredNorm();

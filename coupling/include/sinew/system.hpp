@@ -169,6 +169,7 @@ class System {
   friend class Newmark;
   void add_force_impl(std::unique_ptr<Force> force);
   void require_not_finalized(const char* what) const;
+  void require_finalized(const char* what) const;
   void absorb_bound_masses();
   void compute_effective_masses();
 
