@@ -34,7 +34,9 @@ using MatrixXd = Eigen::MatrixXd;
 Vectors3 grid_positions(Index nx, Index ny, double h) {
   Vectors3 x(3, nx * ny);
   for (Index j = 0; j < ny; ++j) {
-    for (Index i = 0; i < nx; ++i) x.col(j * nx + i) = Vec3(h * static_cast<double>(i), h * static_cast<double>(j), 0.0);
+    for (Index i = 0; i < nx; ++i) {
+      x.col(j * nx + i) = Vec3(h * static_cast<double>(i), h * static_cast<double>(j), 0.0);
+    }
   }
   return x;
 }
@@ -58,7 +60,9 @@ std::vector<Triangle> grid_triangles(Index nx, Index ny) {
 std::vector<Edge> edges_of(const std::vector<Triangle>& triangles) {
   std::vector<Edge> edges;
   for (const Triangle& t : triangles) {
-    for (std::size_t a = 0; a < 3; ++a) edges.push_back({std::min(t[a], t[(a + 1) % 3]), std::max(t[a], t[(a + 1) % 3])});
+    for (std::size_t a = 0; a < 3; ++a) {
+      edges.push_back({std::min(t[a], t[(a + 1) % 3]), std::max(t[a], t[(a + 1) % 3])});
+    }
   }
   std::sort(edges.begin(), edges.end());
   edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
@@ -69,7 +73,9 @@ std::vector<Edge> edges_of(const std::vector<Triangle>& triangles) {
 /// diagonal 0-7.
 void cube_block(Vectors3& x, std::vector<Tet>& tets) {
   x.resize(3, 8);
-  for (Index i = 0; i < 8; ++i) x.col(i) = Vec3(static_cast<double>(i & 1), static_cast<double>((i >> 1) & 1), static_cast<double>((i >> 2) & 1));
+  for (Index i = 0; i < 8; ++i) {
+    x.col(i) = Vec3(static_cast<double>(i & 1), static_cast<double>((i >> 1) & 1), static_cast<double>((i >> 2) & 1));
+  }
   const Index axes[6][3] = {{1, 2, 4}, {1, 4, 2}, {2, 1, 4}, {2, 4, 1}, {4, 1, 2}, {4, 2, 1}};
   tets.clear();
   for (const auto& p : axes) {
@@ -688,7 +694,9 @@ TEST(CorotatedTets, UniformScaleEnergyMatchesClosedForm) {
   const Block block;
   const CorotatedTets tets = make_tets(block);
   const double s = 1.1;
-  const double expected = 1.0 * (tets.mu() * 3.0 * (s - 1.0) * (s - 1.0) + 0.5 * tets.lambda() * 9.0 * (s - 1.0) * (s - 1.0));
+  // F = s I on the whole unit cube (volume 1): sigma_i = s.
+  const double strain = s - 1.0;
+  const double expected = tets.mu() * 3.0 * strain * strain + 0.5 * tets.lambda() * 9.0 * strain * strain;
   EXPECT_NEAR(tets.potential_energy(s * block.rest), expected, 1e-10 * expected);
 }
 
@@ -753,7 +761,8 @@ const BadInputCase kBadInputs[] = {
      "edge springs: damping is inf"},
     {"springs_index_out_of_range", [] { EdgeSprings({{0, 1}, {1, 7}}, three_points()); },
      "edge 1: vertex index 7 out of range [0, 3)"},
-    {"springs_repeated_index", [] { EdgeSprings({{0, 1}, {2, 2}}, three_points()); }, "edge 1: vertex index 2 is repeated"},
+    {"springs_repeated_index", [] { EdgeSprings({{0, 1}, {2, 2}}, three_points()); },
+     "edge 1: vertex index 2 is repeated"},
     {"springs_zero_length",
      [] {
        Vectors3 x = three_points();
@@ -770,12 +779,15 @@ const BadInputCase kBadInputs[] = {
      "edge 1: rest position of vertex 2 is not finite"},
     {"springs_validate_out_of_range", [] { EdgeSprings({{0, 1}, {1, 2}}, three_points()).validate(2); },
      "edge 1: vertex index 2 out of range [0, 2)"},
-    {"springs_stable_dt_short_masses", [] { (void)EdgeSprings({{0, 1}, {1, 2}}, three_points()).stable_dt(VectorXd::Ones(2)); },
+    {"springs_stable_dt_short_masses",
+     [] { (void)EdgeSprings({{0, 1}, {1, 2}}, three_points()).stable_dt(VectorXd::Ones(2)); },
      "edge springs: stable_dt got 2 masses"},
-    {"membrane_nan_mu", [] { TriangleMembrane({{0, 1, 2}}, three_points(), {.mu = kNaN}); }, "triangle membrane: mu is nan"},
+    {"membrane_nan_mu", [] { TriangleMembrane({{0, 1, 2}}, three_points(), {.mu = kNaN}); },
+     "triangle membrane: mu is nan"},
     {"membrane_negative_beta", [] { TriangleMembrane({{0, 1, 2}}, three_points(), {.beta = -0.1}); },
      "triangle membrane: beta is negative"},
-    {"membrane_lambda_below_minus_mu", [] { TriangleMembrane({{0, 1, 2}}, three_points(), {.mu = 1.0, .lambda = -2.0}); },
+    {"membrane_lambda_below_minus_mu",
+     [] { TriangleMembrane({{0, 1, 2}}, three_points(), {.mu = 1.0, .lambda = -2.0}); },
      "triangle membrane: lambda -2"},
     {"membrane_index_out_of_range", [] { TriangleMembrane({{0, 1, 900}}, three_points()); },
      "triangle 0: vertex index 900 out of range [0, 3)"},
@@ -816,7 +828,8 @@ const BadInputCase kBadInputs[] = {
     {"bending_non_manifold_edge",
      [] { (void)DihedralBending::hinges_from_triangles({{0, 1, 2}, {1, 0, 3}, {0, 1, 4}}); },
      "edge (0, 1) is shared by 3 triangles"},
-    {"bending_triangle_with_repeated_index", [] { (void)DihedralBending::hinges_from_triangles({{0, 1, 2}, {1, 1, 3}}); },
+    {"bending_triangle_with_repeated_index",
+     [] { (void)DihedralBending::hinges_from_triangles({{0, 1, 2}, {1, 1, 3}}); },
      "triangle 1: vertex index 1 is repeated"},
     {"tets_inverted_rest",
      [] { CorotatedTets({{0, 1, 2, 3}, {1, 3, 2, 4}}, five_points(Vec3(1.0, 1.0, 1.0))); },
@@ -834,7 +847,8 @@ const BadInputCase kBadInputs[] = {
      "corotated tets: young_modulus is 0"},
     {"tets_nan_poisson", [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.poisson_ratio = kNaN}); },
      "corotated tets: poisson_ratio is nan"},
-    {"tets_incompressible_poisson", [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.poisson_ratio = 0.5}); },
+    {"tets_incompressible_poisson",
+     [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.poisson_ratio = 0.5}); },
      "corotated tets: poisson_ratio 0.5 is outside (-1, 0.5)"},
     {"tets_nan_beta", [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.beta = kNaN}); },
      "corotated tets: beta is nan"},

@@ -196,7 +196,9 @@ DihedralBending::DihedralBending(std::vector<Hinge> hinges, const Vectors3& rest
 }
 
 void DihedralBending::validate(Index particle_count) const {
-  for (std::size_t h = 0; h < m_hinges.size(); ++h) detail::check_element_indices("hinge", h, m_hinges[h], particle_count);
+  for (std::size_t h = 0; h < m_hinges.size(); ++h) {
+    detail::check_element_indices("hinge", h, m_hinges[h], particle_count);
+  }
 }
 
 void DihedralBending::update_position_state(const Vectors3& x) {

@@ -76,9 +76,11 @@ struct Incidence {
     }
     for (std::size_t i = 0; i + 1 < inc.offsets.size(); ++i) inc.offsets[i + 1] += inc.offsets[i];
     inc.elements.resize(static_cast<std::size_t>(inc.offsets.back()));
-    std::vector<Index> fill(inc.offsets.begin(), inc.offsets.end() - 1);
+    std::vector<Index> next(inc.offsets.begin(), inc.offsets.end() - 1);  // next free slot per particle
     for (std::size_t e = 0; e < element_vertices.size(); ++e) {
-      for (Index i : element_vertices[e]) inc.elements[static_cast<std::size_t>(fill[static_cast<std::size_t>(i)]++)] = static_cast<Index>(e);
+      for (Index i : element_vertices[e]) {
+        inc.elements[static_cast<std::size_t>(next[static_cast<std::size_t>(i)]++)] = static_cast<Index>(e);
+      }
     }
     return inc;
   }
