@@ -35,6 +35,7 @@ struct Scene {
     settings.cloth.nx = settings.cloth.ny = n;
     handles = scenes::add_hanging_cloth(system, settings);
     system.finalize();
+    if (const char* tol = std::getenv("SINEW_CG_TOL")) system.step_settings().cg_tolerance = std::atof(tol);
   }
   Vectors3 bottom_edge() const {
     const auto& cloth = handles.cloth;
