@@ -79,9 +79,12 @@ HingeKinematics<T> hinge_kinematics(const Vec<T> (&p)[4]) {
   return k;
 }
 
-/// theta - theta0 wrapped to [-pi, pi] (see the comment at the top).
+/// theta - theta0 wrapped to [-pi, pi] (see the comment at the top). Both angles lie in (-pi, pi], so
+/// one shift by 2 pi is enough (cheaper than std::remainder on the hot path).
 double wrapped_difference(double theta, double theta0) {
-  return std::remainder(theta - theta0, 2.0 * std::numbers::pi);
+  constexpr double pi = std::numbers::pi;
+  const double delta = theta - theta0;
+  return delta > pi ? delta - 2.0 * pi : (delta < -pi ? delta + 2.0 * pi : delta);
 }
 
 Vec<double> to_vec(const Eigen::Ref<const Vec3>& x) { return {x.x(), x.y(), x.z()}; }
@@ -202,6 +205,13 @@ void DihedralBending::validate(Index particle_count) const {
 }
 
 void DihedralBending::update_position_state(const Vectors3& x) {
+  // Without damping only the differential needs cached state, and it needs positions alone: skip the
+  // angle gradients (an atan2 and two normalisations per hinge, every solve).
+  if (m_settings.damping == 0.0) {
+    for (std::size_t h = 0; h < m_hinges.size(); ++h)
+      for (std::size_t a = 0; a < 4; ++a) m_x[h].col(static_cast<Index>(a)) = x.col(m_hinges[h][a]);
+    return;
+  }
   for (std::size_t h = 0; h < m_hinges.size(); ++h) {
     Vec<double> p[4];
     gather_hinge(x, m_hinges[h], p);
