@@ -148,21 +148,21 @@ void HardBindings::update_rigid_offsets(const RigidBodyParticles& bodies) {
 }
 
 void HardBindings::clamp_positions(Vectors3& x, const Vectors3& body_x) const {
-  for (Index k = 0; k < linear_count(); ++k) {
-    Vec3 xe = Vec3::Zero();
-    for (Index j = m_offset[k]; j < m_offset[k + 1]; ++j) xe += m_weight[j] * x.col(m_parent[j]);
-    x.col(m_linear_particle[k]) = xe;
-  }
+  clamp_linear(x);
   for (Index k = 0; k < rigid_count(); ++k)
     x.col(m_rigid_particle[k]) = body_x.col(m_rigid_body[k]) + m_r.col(k);
 }
 
-void HardBindings::clamp_velocities(Vectors3& v, const Vectors6& twist) const {
+void HardBindings::clamp_linear(Vectors3& v) const {
   for (Index k = 0; k < linear_count(); ++k) {
     Vec3 ve = Vec3::Zero();
     for (Index j = m_offset[k]; j < m_offset[k + 1]; ++j) ve += m_weight[j] * v.col(m_parent[j]);
     v.col(m_linear_particle[k]) = ve;
   }
+}
+
+void HardBindings::clamp_velocities(Vectors3& v, const Vectors6& twist) const {
+  clamp_linear(v);
   for (Index k = 0; k < rigid_count(); ++k) {
     const auto t = twist.col(m_rigid_body[k]);
     const Vec3 w = t.tail<3>();
@@ -171,11 +171,7 @@ void HardBindings::clamp_velocities(Vectors3& v, const Vectors6& twist) const {
 }
 
 void HardBindings::clamp_velocities(Vectors3& v, const Vectors3& body_v, const Vectors3& body_w) const {
-  for (Index k = 0; k < linear_count(); ++k) {
-    Vec3 ve = Vec3::Zero();
-    for (Index j = m_offset[k]; j < m_offset[k + 1]; ++j) ve += m_weight[j] * v.col(m_parent[j]);
-    v.col(m_linear_particle[k]) = ve;
-  }
+  clamp_linear(v);
   for (Index k = 0; k < rigid_count(); ++k) {
     const Index b = m_rigid_body[k];
     v.col(m_rigid_particle[k]) = body_v.col(b) + Vec3(body_w.col(b)).cross(Vec3(m_r.col(k)));

@@ -79,6 +79,8 @@ class HardBindings {
 
  private:
   void rebuild_lookup(Index particle_count);
+  /// y_e = sum_i w_i y_i for every linear binding (positions or velocities alike).
+  void clamp_linear(Vectors3& y) const;
 
   // Linear bindings in compressed rows: parents/weights of binding k in [m_offset[k], m_offset[k+1]).
   // m_*_id is the order in which the user added the binding, used to name it in messages.
