@@ -1,0 +1,69 @@
+// sinew::bullet::Coupling — runs sinew's deformables inside an existing Bullet world, two-way coupled
+// to its rigid bodies by the scheme of Sifakis et al. 2007, section 5. This folder is the only code
+// of sinew that includes Bullet headers.
+//
+// The application keeps calling world->stepSimulation(dt, maxSubSteps, fixedStep); the coupling runs
+// once per internal tick from Bullet's pre-tick callback (after any pre-tick callback the application
+// had installed, which it chains), so rigid bodies and deformables advance with the same fixed step.
+#pragma once
+
+#include "sinew/system.hpp"
+
+#include <LinearMath/btScalar.h>
+
+#include <vector>
+
+class btDynamicsWorld;
+class btRigidBody;
+
+namespace sinew::bullet {
+
+struct CouplingSettings {
+  /// Gravity for the deformables is read from the world; rigid bodies get theirs from Bullet alone.
+  bool use_world_gravity = true;
+  /// Settings of the deformable system; absorb_bound_mass_into_rigid_bodies is forced off because
+  /// Bullet owns the bodies' mass properties (the mass of a point hard-bound to a body is dropped).
+  SystemSettings system;
+};
+
+class Coupling {
+ public:
+  /// Attaches to `world` (which must outlive the coupling).
+  explicit Coupling(btDynamicsWorld* world, const CouplingSettings& settings = {});
+  /// Detaches and restores the application's pre-tick callback.
+  ~Coupling();
+  Coupling(const Coupling&) = delete;
+  Coupling& operator=(const Coupling&) = delete;
+
+  /// The deformable system: add cloth, forces and bindings here before the first tick.
+  System& system() { return m_system; }
+  const System& system() const { return m_system; }
+
+  /// The rigid-body particle standing for `body`, created on first use (before the first tick).
+  /// Static and kinematic bodies become kinematic rigid-body particles (infinite mass).
+  Index rigid_particle(btRigidBody* body);
+  /// Hard-binds `particle` to `body` at `local` (in the body's centre-of-mass frame, metres).
+  Index bind(Index particle, btRigidBody* body, const Vec3& local);
+  /// Hard-binds `particle` to `body` where the particle is now.
+  Index bind_here(Index particle, btRigidBody* body);
+
+  /// One coupled tick of size dt (what the pre-tick callback runs): section 5, steps 1-6.
+  StepStats tick(double dt);
+  /// Statistics of the last tick.
+  const StepStats& last_stats() const { return m_last; }
+  btDynamicsWorld* world() const { return m_world; }
+
+ private:
+  static void pre_tick(btDynamicsWorld* world, btScalar dt);
+  void copy_state_in();
+  void copy_momentum_out();
+
+  btDynamicsWorld* m_world;
+  System m_system;
+  std::vector<btRigidBody*> m_bodies;  // rigid-body particle b stands for m_bodies[b]
+  Vectors3 m_v_in, m_L_in;             // twists copied in, to hand back only their change
+  void (*m_app_pre_tick)(btDynamicsWorld*, btScalar) = nullptr;
+  StepStats m_last;
+};
+
+}  // namespace sinew::bullet

@@ -1,0 +1,158 @@
+#include "sinew/bullet/coupling.hpp"
+
+#include <btBulletDynamicsCommon.h>
+
+#include <algorithm>
+#include <mutex>
+#include <utility>
+
+namespace sinew::bullet {
+
+namespace {
+
+// Bullet keeps the tick callbacks protected and offers no getter. A pointer to member formed through
+// a derived class reads them without touching the world's user-info pointer, which the application
+// may be using for its own callbacks.
+struct TickCallbackAccess : btDynamicsWorld {
+  static btInternalTickCallback pre_tick(const btDynamicsWorld& world) {
+    return world.*(&TickCallbackAccess::m_internalPreTickCallback);
+  }
+};
+
+// Which coupling serves which world: the callback receives only the world.
+std::mutex g_registry_mutex;
+std::vector<std::pair<btDynamicsWorld*, Coupling*>> g_registry;
+
+Coupling* find_coupling(btDynamicsWorld* world) {
+  std::lock_guard<std::mutex> lock(g_registry_mutex);
+  for (const auto& [w, c] : g_registry)
+    if (w == world) return c;
+  return nullptr;
+}
+
+Vec3 to_eigen(const btVector3& v) { return Vec3(v.x(), v.y(), v.z()); }
+btVector3 to_bullet(const Vec3& v) { return btVector3(btScalar(v.x()), btScalar(v.y()), btScalar(v.z())); }
+Quat to_eigen(const btQuaternion& q) { return Quat(q.w(), q.x(), q.y(), q.z()).normalized(); }
+
+}  // namespace
+
+Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m_world(world) {
+  if (!world) fail("bullet coupling: world is null");
+  SystemSettings system = settings.system;
+  system.absorb_bound_mass_into_rigid_bodies = false;
+  if (settings.use_world_gravity) system.gravity = to_eigen(world->getGravity());
+  m_system = System(system);
+  {
+    std::lock_guard<std::mutex> lock(g_registry_mutex);
+    for (const auto& entry : g_registry)
+      if (entry.first == world) fail("bullet coupling: this world already has a coupling attached");
+    g_registry.emplace_back(world, this);
+  }
+  m_app_pre_tick = TickCallbackAccess::pre_tick(*world);
+  world->setInternalTickCallback(&Coupling::pre_tick, world->getWorldUserInfo(), true);
+}
+
+Coupling::~Coupling() {
+  m_world->setInternalTickCallback(m_app_pre_tick, m_world->getWorldUserInfo(), true);
+  std::lock_guard<std::mutex> lock(g_registry_mutex);
+  g_registry.erase(std::remove_if(g_registry.begin(), g_registry.end(), [this](const auto& e) { return e.second == this; }),
+                   g_registry.end());
+}
+
+void Coupling::pre_tick(btDynamicsWorld* world, btScalar dt) {
+  Coupling* coupling = find_coupling(world);
+  if (!coupling) return;
+  if (coupling->m_app_pre_tick) coupling->m_app_pre_tick(world, dt);
+  coupling->tick(static_cast<double>(dt));
+}
+
+Index Coupling::rigid_particle(btRigidBody* body) {
+  if (!body) fail("bullet coupling: rigid body is null");
+  for (std::size_t b = 0; b < m_bodies.size(); ++b)
+    if (m_bodies[b] == body) return static_cast<Index>(b);
+  if (m_system.finalized()) fail("bullet coupling: a new rigid body cannot join after the first tick");
+  const btTransform& frame = body->getCenterOfMassTransform();
+  RigidBodySettings s;
+  s.x = to_eigen(frame.getOrigin());
+  s.q = to_eigen(frame.getRotation());
+  s.kinematic = body->isStaticOrKinematicObject() || body->getInvMass() == btScalar(0);
+  if (!s.kinematic) {
+    s.mass = 1.0 / static_cast<double>(body->getInvMass());
+    const btVector3 inverse = body->getInvInertiaDiagLocal();
+    for (int i = 0; i < 3; ++i) {
+      if (!(inverse[i] > btScalar(0)))
+        fail("bullet coupling: rigid body ", m_bodies.size(), " has a locked rotation axis (inverse inertia ", i,
+             " is 0), which rigid-body particles do not support yet");
+      s.inertia[i] = 1.0 / static_cast<double>(inverse[i]);
+    }
+  }
+  s.gravity = false;  // Bullet applies gravity to its bodies; sinew hands over only the coupling impulse
+  const Index b = m_system.add_rigid_body(s);
+  m_bodies.push_back(body);
+  return b;
+}
+
+Index Coupling::bind(Index particle, btRigidBody* body, const Vec3& local) {
+  return m_system.bind_rigid(particle, rigid_particle(body), local);
+}
+
+Index Coupling::bind_here(Index particle, btRigidBody* body) {
+  return m_system.bind_rigid_here(particle, rigid_particle(body));
+}
+
+// Section 5, in order:
+//   1. copy each Bullet body's state into its rigid-body particle;
+//   2-5. the Newmark step with the rigid-body particles as 6-DOF parents; collisions for deformables only;
+//   6. copy momentum only back: each body receives the change of linear and angular momentum the
+//      deformables gave it (gravity stays Bullet's, so it is not applied twice), and wakes up;
+//   7. Bullet then integrates and collides the rigid bodies itself (the rest of its internal tick).
+StepStats Coupling::tick(double dt) {
+  copy_state_in();
+  m_last = m_system.step(dt);
+  copy_momentum_out();
+  return m_last;
+}
+
+void Coupling::copy_state_in() {
+  RigidBodyParticles& bodies = m_system.rigid_bodies();
+  const Index count = static_cast<Index>(m_bodies.size());
+  if (m_v_in.cols() != count) {
+    m_v_in.setZero(3, count);
+    m_L_in.setZero(3, count);
+  }
+  for (Index b = 0; b < count; ++b) {
+    const btRigidBody* body = m_bodies[b];
+    // A kinematic body jumps to its new pose when stepSimulation starts and reports the velocity that
+    // covers that motion over the whole call. Its particle keeps its own pose and moves with that
+    // velocity tick by tick, so the cloth on it sweeps smoothly and meets the new pose at the end of the
+    // call, exactly where Bullet has the body.
+    if (!bodies.kinematic[b]) {
+      const btTransform& frame = body->getCenterOfMassTransform();
+      bodies.x.col(b) = to_eigen(frame.getOrigin());
+      bodies.q[b] = to_eigen(frame.getRotation());
+    }
+    bodies.v.col(b) = to_eigen(body->getLinearVelocity());
+    bodies.w.col(b) = to_eigen(body->getAngularVelocity());
+    m_v_in.col(b) = bodies.v.col(b);
+    m_L_in.col(b) = bodies.kinematic[b] ? Vec3::Zero() : bodies.angular_momentum(b);
+  }
+}
+
+void Coupling::copy_momentum_out() {
+  const RigidBodyParticles& bodies = m_system.rigid_bodies();
+  for (std::size_t b = 0; b < m_bodies.size(); ++b) {
+    const auto i = static_cast<Index>(b);
+    if (bodies.kinematic[i]) continue;
+    btRigidBody* body = m_bodies[b];
+    const Vec3 dv = bodies.v.col(i) - m_v_in.col(i);
+    // Angular momentum, not angular velocity: Bullet converts it with its own inertia at the
+    // orientation it still holds (the one copied in), so the body receives exactly dL.
+    const Vec3 dL = bodies.angular_momentum(i) - m_L_in.col(i);
+    if (dv.isZero(0.0) && dL.isZero(0.0)) continue;
+    body->setLinearVelocity(body->getLinearVelocity() + to_bullet(dv));
+    body->setAngularVelocity(body->getAngularVelocity() + body->getInvInertiaTensorWorld() * to_bullet(dL));
+    body->activate(true);
+  }
+}
+
+}  // namespace sinew::bullet
