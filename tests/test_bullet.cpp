@@ -1,5 +1,6 @@
 // The Bullet plugin's exchange (Sifakis et al. 2007, section 5): copy state in, momentum out.
 #include "cloth.hpp"
+#include "sinew/bullet/collisions.hpp"
 #include "sinew/bullet/coupling.hpp"
 
 #include <btBulletDynamicsCommon.h>
@@ -178,6 +179,114 @@ TEST(BulletCoupling, ClothFollowsStaticAndKinematicParentsExactly) {
   EXPECT_LT(s.max_hard_binding_drift(), 1e-12);
   EXPECT_EQ(s.particles().x.col(corner), pinned);  // the static parent never moves, nor does its point
 }
+
+}  // namespace
+}  // namespace sinew
+
+namespace sinew {
+namespace {
+
+// Collision regression: a small cloth dropped on each kind of static shape comes to lie on it and
+// never sinks into it (its particles keep a non-negative distance to the surface, i.e. no deeper
+// than the collision thickness into the skin around it).
+class ClothOnShape : public ::testing::TestWithParam<std::string> {};
+
+std::unique_ptr<btCollisionShape> make_shape(const std::string& kind, btTransform& at,
+                                             std::vector<std::unique_ptr<btCollisionShape>>& keep,
+                                             std::unique_ptr<btTriangleMesh>& mesh) {
+  at.setIdentity();
+  if (kind == "plane") return std::make_unique<btStaticPlaneShape>(btVector3(0, 1, 0), 0);
+  if (kind == "box") {
+    at.setOrigin(btVector3(0, -0.1, 0));
+    return std::make_unique<btBoxShape>(btVector3(0.5, 0.1, 0.5));
+  }
+  if (kind == "sphere") {
+    at.setOrigin(btVector3(0, -0.3, 0));
+    return std::make_unique<btSphereShape>(0.3);
+  }
+  if (kind == "capsule") {
+    at.setOrigin(btVector3(0, -0.1, 0));
+    return std::make_unique<btCapsuleShapeX>(0.1, 0.6);
+  }
+  if (kind == "cylinder") {
+    at.setOrigin(btVector3(0, -0.1, 0));
+    return std::make_unique<btCylinderShape>(btVector3(0.3, 0.1, 0.3));
+  }
+  if (kind == "cone") {
+    at.setOrigin(btVector3(0, -0.2, 0));
+    return std::make_unique<btConeShape>(0.3, 0.4);
+  }
+  if (kind == "convex_hull") {
+    auto hull = std::make_unique<btConvexHullShape>();
+    for (int i = 0; i < 8; ++i)
+      hull->addPoint(btVector3(i & 1 ? 0.4 : -0.4, i & 2 ? 0.0 : -0.2, i & 4 ? 0.4 : -0.4), i == 7);
+    hull->setMargin(0);
+    return hull;
+  }
+  if (kind == "compound") {
+    auto compound = std::make_unique<btCompoundShape>();
+    keep.push_back(std::make_unique<btBoxShape>(btVector3(0.2, 0.1, 0.4)));
+    btTransform left, right;
+    left.setIdentity();
+    right.setIdentity();
+    left.setOrigin(btVector3(-0.2, -0.1, 0));
+    right.setOrigin(btVector3(0.2, -0.1, 0.05));
+    compound->addChildShape(left, keep.back().get());
+    compound->addChildShape(right, keep.back().get());
+    return compound;
+  }
+  // triangle mesh: a 2 m x 2 m square of two triangles at y = 0
+  mesh = std::make_unique<btTriangleMesh>();
+  mesh->addTriangle(btVector3(-1, 0, -1), btVector3(1, 0, -1), btVector3(1, 0, 1));
+  mesh->addTriangle(btVector3(-1, 0, -1), btVector3(1, 0, 1), btVector3(-1, 0, 1));
+  return std::make_unique<btBvhTriangleMeshShape>(mesh.get(), true);
+}
+
+TEST_P(ClothOnShape, RestsOnItWithoutPenetrating) {
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  btTransform at;
+  std::unique_ptr<btTriangleMesh> mesh;
+  std::unique_ptr<btCollisionShape> shape = make_shape(GetParam(), at, bw.shapes, mesh);
+  btRigidBody ground(btRigidBody::btRigidBodyConstructionInfo(0, nullptr, shape.get()));
+  ground.setWorldTransform(at);
+  bw.world.addRigidBody(&ground);
+  {
+    bullet::CouplingSettings settings;
+    settings.thickness = 0.01;
+    bullet::Coupling coupling(&bw.world, settings);
+    System& s = coupling.system();
+    scenes::ClothGridSettings c;
+    c.nx = c.ny = 9;
+    c.width = c.height = 0.6;
+    c.mass = 0.1;
+    c.origin = Vec3(-0.3, 0.15, -0.3);
+    c.across = Vec3::UnitX();
+    c.down = Vec3::UnitZ();  // horizontal sheet
+    c.stretch_stiffness = 30.0;
+    c.stretch_damping = 0.02;
+    c.bending_stiffness = 1e-5;
+    scenes::add_cloth_grid(s, c);
+    double lowest = kInfinity;
+    for (int tick = 0; tick < 360; ++tick) {
+      bw.world.stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+      for (Index i = 0; i < s.particles().size(); ++i) {
+        double phi;
+        Vec3 n;
+        if (bullet::signed_distance(shape.get(), at, s.particles().x.col(i), 1.0, phi, n)) lowest = std::min(lowest, phi);
+      }
+    }
+    EXPECT_GE(lowest, -1e-9) << GetParam();
+    // It lies on the shape: the sheet's centre sits at the thickness above the top (y = 0).
+    const Vec3 centre = s.particles().x.col(4 * 9 + 4);
+    EXPECT_NEAR(centre.y(), settings.thickness, 2e-3) << GetParam();
+    EXPECT_TRUE(s.particles().x.allFinite());
+  }
+  bw.world.removeRigidBody(&ground);
+}
+
+INSTANTIATE_TEST_SUITE_P(EveryShape, ClothOnShape,
+                         ::testing::Values("plane", "box", "sphere", "capsule", "cylinder", "cone", "convex_hull",
+                                           "compound", "triangle_mesh"));
 
 }  // namespace
 }  // namespace sinew

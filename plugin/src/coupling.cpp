@@ -1,5 +1,7 @@
 #include "sinew/bullet/coupling.hpp"
 
+#include "sinew/bullet/collisions.hpp"
+
 #include <btBulletDynamicsCommon.h>
 
 #include <algorithm>
@@ -48,6 +50,10 @@ Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m
       if (entry.first == world) fail("bullet coupling: this world already has a coupling attached");
     g_registry.emplace_back(world, this);
   }
+  if (settings.collisions) {
+    m_collisions = std::make_unique<DeformableCollisions>(world, CollisionSettings{settings.thickness, settings.friction});
+    m_system.set_collision_hook([this](CollisionContext& context) { m_collisions->process(context); });
+  }
   m_app_pre_tick = TickCallbackAccess::pre_tick(*world);
   world->setInternalTickCallback(&Coupling::pre_tick, world->getWorldUserInfo(), true);
 }
@@ -58,6 +64,8 @@ Coupling::~Coupling() {
   g_registry.erase(std::remove_if(g_registry.begin(), g_registry.end(), [this](const auto& e) { return e.second == this; }),
                    g_registry.end());
 }
+
+double Coupling::deepest_penetration() const { return m_collisions ? m_collisions->deepest_penetration() : 0.0; }
 
 void Coupling::pre_tick(btDynamicsWorld* world, btScalar dt) {
   Coupling* coupling = find_coupling(world);

@@ -11,6 +11,7 @@
 
 #include <LinearMath/btScalar.h>
 
+#include <memory>
 #include <vector>
 
 class btDynamicsWorld;
@@ -24,7 +25,13 @@ struct CouplingSettings {
   /// Settings of the deformable system; absorb_bound_mass_into_rigid_bodies is forced off because
   /// Bullet owns the bodies' mass properties (the mass of a point hard-bound to a body is dropped).
   SystemSettings system;
+  /// Collisions of free and soft-bound particles with every collision object of the world.
+  bool collisions = true;
+  double thickness = 0.01;  ///< [m]
+  double friction = 0.3;    ///< Coulomb coefficient
 };
+
+class DeformableCollisions;
 
 class Coupling {
  public:
@@ -52,6 +59,8 @@ class Coupling {
   /// Statistics of the last tick.
   const StepStats& last_stats() const { return m_last; }
   btDynamicsWorld* world() const { return m_world; }
+  /// Deepest penetration below the thickness found (and removed) in the last tick's step 3 [m].
+  double deepest_penetration() const;
 
  private:
   static void pre_tick(btDynamicsWorld* world, btScalar dt);
@@ -64,6 +73,7 @@ class Coupling {
   Vectors3 m_v_in, m_L_in;             // twists copied in, to hand back only their change
   void (*m_app_pre_tick)(btDynamicsWorld*, btScalar) = nullptr;
   StepStats m_last;
+  std::unique_ptr<DeformableCollisions> m_collisions;
 };
 
 }  // namespace sinew::bullet

@@ -1,0 +1,234 @@
+#include "sinew/bullet/collisions.hpp"
+
+#include <BulletCollision/NarrowPhaseCollision/btGjkEpa2.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace sinew::bullet {
+
+namespace {
+
+Vec3 to_eigen(const btVector3& v) { return Vec3(v.x(), v.y(), v.z()); }
+btVector3 to_bullet(const Vec3& v) { return btVector3(btScalar(v.x()), btScalar(v.y()), btScalar(v.z())); }
+
+// Box of half extents h centred at the origin, local frame.
+double box_distance(const Vec3& h, const Vec3& p, Vec3& n) {
+  const Vec3 q = p.cwiseAbs() - h;
+  if ((q.array() > 0.0).any()) {
+    const Vec3 outside = q.cwiseMax(0.0);
+    const double d = outside.norm();
+    n = outside.cwiseProduct(p.cwiseSign()) / d;
+    return d;
+  }
+  Index axis;
+  const double d = q.maxCoeff(&axis);  // inside: the nearest face
+  n = Vec3::Zero();
+  n[axis] = p[axis] >= 0.0 ? 1.0 : -1.0;
+  return d;
+}
+
+struct ClosestTriangle : btTriangleCallback {
+  Vec3 p;
+  double best = kInfinity;
+  Vec3 closest = Vec3::Zero(), face_normal = Vec3::UnitY();
+  void processTriangle(btVector3* t, int, int) override {
+    const Vec3 a = to_eigen(t[0]), b = to_eigen(t[1]), c = to_eigen(t[2]);
+    // Closest point on a triangle (Ericson, Real-Time Collision Detection, 5.1.5).
+    const Vec3 ab = b - a, ac = c - a, ap = p - a;
+    Vec3 q;
+    const double d1 = ab.dot(ap), d2 = ac.dot(ap);
+    const Vec3 bp = p - b;
+    const double d3 = ab.dot(bp), d4 = ac.dot(bp);
+    const Vec3 cp = p - c;
+    const double d5 = ab.dot(cp), d6 = ac.dot(cp);
+    const double vc = d1 * d4 - d3 * d2, vb = d5 * d2 - d1 * d6, va = d3 * d6 - d5 * d4;
+    if (d1 <= 0 && d2 <= 0) q = a;
+    else if (d3 >= 0 && d4 <= d3) q = b;
+    else if (vc <= 0 && d1 >= 0 && d3 <= 0) q = a + (d1 / (d1 - d3)) * ab;
+    else if (d6 >= 0 && d5 <= d6) q = c;
+    else if (vb <= 0 && d2 >= 0 && d6 <= 0) q = a + (d2 / (d2 - d6)) * ac;
+    else if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) q = b + ((d4 - d3) / ((d4 - d3) + (d5 - d6))) * (c - b);
+    else {
+      const double denom = 1.0 / (va + vb + vc);
+      q = a + ab * (vb * denom) + ac * (vc * denom);
+    }
+    const double d = (p - q).squaredNorm();
+    if (d < best) {
+      best = d;
+      closest = q;
+      const Vec3 normal = ab.cross(ac);
+      face_normal = normal.norm() > 0 ? Vec3(normal.normalized()) : Vec3::UnitY();
+    }
+  }
+};
+
+}  // namespace
+
+bool signed_distance(const btCollisionShape* shape, const btTransform& frame, const Vec3& x, double reach,
+                     double& phi, Vec3& normal) {
+  const btMatrix3x3& basis = frame.getBasis();
+  const Vec3 local = to_eigen(frame.invXform(to_bullet(x)));
+  auto to_world = [&](const Vec3& n) { return to_eigen(basis * to_bullet(n)); };
+  switch (shape->getShapeType()) {
+    case STATIC_PLANE_PROXYTYPE: {
+      const auto* plane = static_cast<const btStaticPlaneShape*>(shape);
+      const Vec3 n = to_eigen(plane->getPlaneNormal());
+      phi = n.dot(local) - static_cast<double>(plane->getPlaneConstant());
+      normal = to_world(n);
+      return true;
+    }
+    case SPHERE_SHAPE_PROXYTYPE: {
+      const double r = static_cast<const btSphereShape*>(shape)->getRadius();
+      const double d = local.norm();
+      phi = d - r;
+      normal = to_world(d > 0 ? Vec3(local / d) : Vec3::UnitY());
+      return true;
+    }
+    case BOX_SHAPE_PROXYTYPE: {
+      Vec3 n;
+      phi = box_distance(to_eigen(static_cast<const btBoxShape*>(shape)->getHalfExtentsWithMargin()), local, n);
+      normal = to_world(n);
+      return true;
+    }
+    case COMPOUND_SHAPE_PROXYTYPE: {
+      const auto* compound = static_cast<const btCompoundShape*>(shape);
+      bool found = false;
+      for (int i = 0; i < compound->getNumChildShapes(); ++i) {
+        double child_phi;
+        Vec3 child_normal;
+        if (!signed_distance(compound->getChildShape(i), frame * compound->getChildTransform(i), x, reach, child_phi, child_normal))
+          continue;
+        if (!found || child_phi < phi) {
+          phi = child_phi;
+          normal = child_normal;
+          found = true;
+        }
+      }
+      return found;
+    }
+    default:
+      break;
+  }
+  if (shape->isConvex()) {
+    btGjkEpaSolver2::sResults result;
+    const btScalar d = btGjkEpaSolver2::SignedDistance(to_bullet(x), btScalar(0), static_cast<const btConvexShape*>(shape), frame, result);
+    if (result.status == btGjkEpaSolver2::sResults::GJK_Failed || result.status == btGjkEpaSolver2::sResults::EPA_Failed)
+      return false;
+    phi = static_cast<double>(d);
+    normal = to_eigen(result.normal);  // outward, from the surface towards the point
+    const double length = normal.norm();
+    if (!(length > 0)) return false;
+    normal /= length;
+    return true;
+  }
+  if (shape->isConcave()) {
+    ClosestTriangle closest;
+    closest.p = local;
+    const btScalar s = static_cast<btScalar>(reach);
+    const btVector3 r{s, s, s};
+    static_cast<const btConcaveShape*>(shape)->processAllTriangles(&closest, to_bullet(local) - r, to_bullet(local) + r);
+    if (!std::isfinite(closest.best)) return false;
+    const double d = std::sqrt(closest.best);
+    phi = d;
+    Vec3 n = d > 1e-12 ? Vec3((local - closest.closest) / d) : closest.face_normal;
+    normal = to_world(n);
+    return true;
+  }
+  return false;
+}
+
+DeformableCollisions::DeformableCollisions(btCollisionWorld* world, const CollisionSettings& settings)
+    : m_world(world), m_settings(settings) {
+  if (!(std::isfinite(settings.thickness) && settings.thickness > 0))
+    fail("collision settings: thickness ", settings.thickness, " must be positive and finite");
+  if (!(std::isfinite(settings.friction) && settings.friction >= 0))
+    fail("collision settings: friction ", settings.friction, " must be non-negative and finite");
+}
+
+void DeformableCollisions::process(CollisionContext& c) {
+  const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
+  const int count = objects.size();
+  m_aabb_min.resize(static_cast<std::size_t>(count));
+  m_aabb_max.resize(static_cast<std::size_t>(count));
+  const double thickness = m_settings.thickness;
+  const btScalar t = static_cast<btScalar>(thickness);
+  const btVector3 pad{t, t, t};
+  for (int o = 0; o < count; ++o) {
+    objects[o]->getCollisionShape()->getAabb(objects[o]->getWorldTransform(), m_aabb_min[o], m_aabb_max[o]);
+    m_aabb_min[o] -= pad;
+    m_aabb_max[o] += pad;
+  }
+  m_deepest = 0.0;
+  m_contacts = 0;
+  Vectors3& x = *c.x;
+  Vectors3& v = *c.v;
+  const Particles& particles = *c.particles;
+  for (Index i = 0; i < particles.size(); ++i) {
+    const ParticleKind kind = particles.kind[i];
+    if (kind != ParticleKind::free && kind != ParticleKind::soft_spring && kind != ParticleKind::soft_synchronized) continue;
+    const btVector3 p = to_bullet(x.col(i));
+    // The closest surface within reach over all objects.
+    int hit = -1;
+    double phi = kInfinity;
+    Vec3 normal = Vec3::Zero();
+    for (int o = 0; o < count; ++o) {
+      const btVector3& lo = m_aabb_min[o];
+      const btVector3& hi = m_aabb_max[o];
+      if (p.x() < lo.x() || p.y() < lo.y() || p.z() < lo.z() || p.x() > hi.x() || p.y() > hi.y() || p.z() > hi.z()) continue;
+      double d;
+      Vec3 n;
+      if (!signed_distance(objects[o]->getCollisionShape(), objects[o]->getWorldTransform(), x.col(i), thickness, d, n)) continue;
+      if (d < 0.0 && d < phi) {
+        // Entered this step: push back out through the side the particle came from, so a thin body
+        // is not crossed by projecting to its far face.
+        double d_n;
+        Vec3 n_n;
+        if (signed_distance(objects[o]->getCollisionShape(), objects[o]->getWorldTransform(), c.x_n->col(i), thickness, d_n, n_n) &&
+            d_n > 0.0) {
+          n = n_n;
+          d = d_n + n_n.dot(x.col(i) - c.x_n->col(i));
+        }
+      }
+      if (d < phi) {
+        phi = d;
+        normal = n;
+        hit = o;
+      }
+    }
+    if (hit < 0 || phi >= thickness) continue;
+    ++m_contacts;
+    m_deepest = std::max(m_deepest, thickness - phi);
+    const btCollisionObject* object = objects[hit];
+    const btRigidBody* rigid = btRigidBody::upcast(object);
+    Vec3 v_body = Vec3::Zero();
+    btVector3 arm(0, 0, 0);
+    if (rigid) {
+      arm = p - rigid->getCenterOfMassPosition();
+      v_body = to_eigen(rigid->getVelocityInLocalPoint(arm));
+    }
+    x.col(i) += (thickness - phi) * normal;
+    const Vec3 v_old = v.col(i);
+    const Vec3 v_rel = v_old - v_body;
+    const double vn = normal.dot(v_rel);
+    if (vn < 0.0) {
+      // Stop the approach; Coulomb friction takes up to mu |dv_n| of the tangential slip.
+      Vec3 v_t = v_rel - vn * normal;
+      const double slip = v_t.norm();
+      if (slip > 0.0) v_t *= std::max(0.0, 1.0 - m_settings.friction * (-vn) / slip);
+      v.col(i) = v_body + v_t;
+    }
+    if (!rigid || rigid->isStaticOrKinematicObject()) {
+      // A prescribed surface also holds the particle in step 4 (a projection: its reaction goes to
+      // a body of infinite mass, so no momentum is lost).
+      if (is_dynamic(kind)) c.constraints->push_back({i, normal, normal.dot(v_body)});
+    } else {
+      // Equal and opposite: the particle's momentum change goes into the dynamic body at the contact.
+      // No step-4 constraint here: its reaction would have nowhere to go.
+      const Vec3 j = particles.mass[i] * (v.col(i) - v_old);
+      if (!j.isZero(0.0)) const_cast<btRigidBody*>(rigid)->applyImpulse(-to_bullet(j), arm);
+    }
+  }
+}
+
+}  // namespace sinew::bullet
