@@ -111,6 +111,14 @@ TEST(BulletCoupling, IsolatedCoupledSystemConservesLinearMomentumThroughTheExcha
   EXPECT_LT(worst, 1e-10);
   EXPECT_GT((box->getLinearVelocity() - btVector3(0.2, 0.1, 0)).length(), 1e-3);  // the cloth did push it
   EXPECT_LT(s.max_hard_binding_drift(), 1e-12);
+  // After each tick the bound points sit on the frame Bullet integrated, not on sinew's prediction.
+  const btTransform& frame = box->getCenterOfMassTransform();
+  for (Index k = 0; k < s.hard_bindings().rigid_count(); ++k) {
+    const Vec3 local = s.hard_bindings().rigid_offset_body(k);
+    const btVector3 on_box = frame * btVector3(local.x(), local.y(), local.z());
+    const Vec3 x = s.particles().x.col(s.hard_bindings().rigid_particle(k));
+    EXPECT_LT((x - Vec3(on_box.x(), on_box.y(), on_box.z())).norm(), 1e-12) << "binding " << k;
+  }
 }
 
 // Gravity stays Bullet's for rigid bodies and sinew's for deformables: a box and the cloth hanging

@@ -19,6 +19,9 @@ struct TickCallbackAccess : btDynamicsWorld {
   static btInternalTickCallback pre_tick(const btDynamicsWorld& world) {
     return world.*(&TickCallbackAccess::m_internalPreTickCallback);
   }
+  static btInternalTickCallback post_tick(const btDynamicsWorld& world) {
+    return world.*(&TickCallbackAccess::m_internalTickCallback);
+  }
 };
 
 // Which coupling serves which world: the callback receives only the world.
@@ -55,11 +58,14 @@ Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m
     m_system.set_collision_hook([this](CollisionContext& context) { m_collisions->process(context); });
   }
   m_app_pre_tick = TickCallbackAccess::pre_tick(*world);
+  m_app_post_tick = TickCallbackAccess::post_tick(*world);
   world->setInternalTickCallback(&Coupling::pre_tick, world->getWorldUserInfo(), true);
+  world->setInternalTickCallback(&Coupling::post_tick, world->getWorldUserInfo(), false);
 }
 
 Coupling::~Coupling() {
   m_world->setInternalTickCallback(m_app_pre_tick, m_world->getWorldUserInfo(), true);
+  m_world->setInternalTickCallback(m_app_post_tick, m_world->getWorldUserInfo(), false);
   std::lock_guard<std::mutex> lock(g_registry_mutex);
   g_registry.erase(std::remove_if(g_registry.begin(), g_registry.end(), [this](const auto& e) { return e.second == this; }),
                    g_registry.end());
@@ -72,6 +78,19 @@ void Coupling::pre_tick(btDynamicsWorld* world, btScalar dt) {
   if (!coupling) return;
   if (coupling->m_app_pre_tick) coupling->m_app_pre_tick(world, dt);
   coupling->tick(static_cast<double>(dt));
+}
+
+void Coupling::post_tick(btDynamicsWorld* world, btScalar dt) {
+  Coupling* coupling = find_coupling(world);
+  if (!coupling) return;
+  coupling->follow_bodies();
+  if (coupling->m_app_post_tick) coupling->m_app_post_tick(world, dt);
+}
+
+void Coupling::follow_bodies() {
+  if (!m_system.finalized()) return;
+  copy_state_in();
+  m_system.clamp_bound_rows();
 }
 
 Index Coupling::rigid_particle(btRigidBody* body) {

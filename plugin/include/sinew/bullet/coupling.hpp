@@ -5,6 +5,8 @@
 // The application keeps calling world->stepSimulation(dt, maxSubSteps, fixedStep); the coupling runs
 // once per internal tick from Bullet's pre-tick callback (after any pre-tick callback the application
 // had installed, which it chains), so rigid bodies and deformables advance with the same fixed step.
+// A post-tick callback (also chained) puts the hard-bound points back on the frames Bullet has just
+// integrated, so a point bound to a body is exactly on it whenever the application looks.
 #pragma once
 
 #include "sinew/system.hpp"
@@ -64,6 +66,9 @@ class Coupling {
 
  private:
   static void pre_tick(btDynamicsWorld* world, btScalar dt);
+  static void post_tick(btDynamicsWorld* world, btScalar dt);
+  /// After Bullet's integration: bound rows move onto the bodies' new frames (they are W of them).
+  void follow_bodies();
   void copy_state_in();
   void copy_momentum_out();
 
@@ -72,6 +77,7 @@ class Coupling {
   std::vector<btRigidBody*> m_bodies;  // rigid-body particle b stands for m_bodies[b]
   Vectors3 m_v_in, m_L_in;             // twists copied in, to hand back only their change
   void (*m_app_pre_tick)(btDynamicsWorld*, btScalar) = nullptr;
+  void (*m_app_post_tick)(btDynamicsWorld*, btScalar) = nullptr;
   StepStats m_last;
   std::unique_ptr<DeformableCollisions> m_collisions;
 };
