@@ -135,7 +135,7 @@ Index Coupling::bind_here(Index particle, btRigidBody* body) {
 //   7. Bullet then integrates and collides the rigid bodies itself (the rest of its internal tick).
 StepStats Coupling::tick(double dt) {
   copy_state_in();
-  m_last = m_system.step(dt);
+  m_last = m_system.advance(dt);  // substeps when the tick exceeds the elastic forces' stable step
   copy_momentum_out();
   return m_last;
 }

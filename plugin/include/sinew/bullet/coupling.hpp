@@ -51,6 +51,8 @@ class Coupling {
   /// The rigid-body particle standing for `body`, created on first use (before the first tick).
   /// Static and kinematic bodies become kinematic rigid-body particles (infinite mass).
   Index rigid_particle(btRigidBody* body);
+  /// The Bullet body a rigid-body particle stands for.
+  btRigidBody* body(Index rigid_particle) const { return m_bodies.at(static_cast<std::size_t>(rigid_particle)); }
   /// Hard-binds `particle` to `body` at `local` (in the body's centre-of-mass frame, metres).
   Index bind(Index particle, btRigidBody* body, const Vec3& local);
   /// Hard-binds `particle` to `body` where the particle is now.

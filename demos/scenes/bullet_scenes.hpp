@@ -1,0 +1,80 @@
+// Bullet scenes shared by sinew-demo, the regression tests and the benchmarks: each is a plain Bullet
+// world, set up as an application would, with sinew's coupling attached.
+#pragma once
+
+#include "cloth.hpp"
+#include "sinew/bullet/coupling.hpp"
+
+#include <btBulletDynamicsCommon.h>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace sinew::scenes {
+
+/// A Bullet world that owns its shapes, motion states, bodies and constraints.
+class BulletWorld {
+ public:
+  explicit BulletWorld(const btVector3& gravity);
+  ~BulletWorld();
+  BulletWorld(const BulletWorld&) = delete;
+  BulletWorld& operator=(const BulletWorld&) = delete;
+
+  btDiscreteDynamicsWorld& world() { return *m_world; }
+  /// Takes ownership of a shape and returns it.
+  btCollisionShape* keep(std::unique_ptr<btCollisionShape> shape);
+  /// A rigid body; mass 0 makes it static. `inertia` zero means "from the shape".
+  btRigidBody* add_body(btCollisionShape* shape, double mass, const btTransform& at, btVector3 inertia = btVector3(0, 0, 0),
+                        int group = btBroadphaseProxy::DefaultFilter, int mask = btBroadphaseProxy::AllFilter);
+  btTypedConstraint* add_constraint(std::unique_ptr<btTypedConstraint> constraint);
+  const std::vector<btRigidBody*>& bodies() const { return m_body_list; }
+  /// Kinetic plus gravitational energy of the dynamic bodies.
+  double rigid_energy() const;
+
+ private:
+  std::unique_ptr<btDefaultCollisionConfiguration> m_configuration;
+  std::unique_ptr<btCollisionDispatcher> m_dispatcher;
+  std::unique_ptr<btDbvtBroadphase> m_broadphase;
+  std::unique_ptr<btSequentialImpulseConstraintSolver> m_solver;
+  std::unique_ptr<btDiscreteDynamicsWorld> m_world;
+  std::vector<std::unique_ptr<btCollisionShape>> m_shapes;
+  std::vector<std::unique_ptr<btDefaultMotionState>> m_states;
+  std::vector<std::unique_ptr<btRigidBody>> m_bodies;
+  std::vector<btRigidBody*> m_body_list;
+  std::vector<std::unique_ptr<btTypedConstraint>> m_constraints;
+};
+
+/// One demo scene: a Bullet world, the coupling, and what the demo reports about it.
+class BulletScene {
+ public:
+  explicit BulletScene(const btVector3& gravity, const bullet::CouplingSettings& settings = {});
+  virtual ~BulletScene() = default;
+  virtual std::string name() const = 0;
+  /// Called before each frame with the time at its start (animates kinematic bodies).
+  virtual void before_frame(double time) { (void)time; }
+  /// Advances one frame: world.stepSimulation(frame_dt, substeps, frame_dt / substeps).
+  void advance(double frame_dt, int substeps);
+
+  BulletWorld& bullet() { return m_world; }
+  bullet::Coupling& coupling() { return *m_coupling; }
+  System& system() { return m_coupling->system(); }
+  double time() const { return m_time; }
+
+  /// Largest distance of a hard-bound point from where its Bullet body's frame puts it [m].
+  double hard_binding_drift();
+  /// Deformable kinetic and potential energy plus the rigid bodies' [J].
+  double total_energy();
+
+ protected:
+  BulletWorld m_world;
+  std::unique_ptr<bullet::Coupling> m_coupling;
+  std::vector<btRigidBody*> m_bound_bodies;  // body of each rigid-binding parent, by rigid particle
+  double m_time = 0.0;
+};
+
+std::vector<std::string> bullet_scene_names();
+/// "curtain", "net", "plates" or "hello"; throws sinew::Error for anything else.
+std::unique_ptr<BulletScene> make_bullet_scene(const std::string& name);
+
+}  // namespace sinew::scenes
