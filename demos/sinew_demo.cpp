@@ -22,7 +22,7 @@ namespace {
 int main(int argc, char** argv) {
   if (argc < 2) usage("which scene?");
   const std::string scene_name = argv[1];
-  int frames = 240, substeps = 4;
+  int frames = 240, substeps = 0;  // 0: the scene's own
   double dt = 1.0 / 60.0;
   for (int i = 2; i < argc; ++i) {
     auto value = [&]() -> const char* {
@@ -34,9 +34,10 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--substeps")) substeps = std::atoi(value());
     else usage("unknown flag");
   }
-  if (frames < 1 || substeps < 1 || !(dt > 0)) usage("--frames, --substeps and --dt must be positive");
+  if (frames < 1 || substeps < 0 || !(dt > 0)) usage("--frames, --substeps and --dt must be positive");
   try {
     auto scene = sinew::scenes::make_bullet_scene(scene_name);
+    if (substeps == 0) substeps = scene->default_substeps();
     double drift = 0.0, stretch = 0.0, penetration = 0.0, wall_ms = 0.0, energy_start = 0.0;
     bool first = true;
     for (int f = 0; f < frames; ++f) {

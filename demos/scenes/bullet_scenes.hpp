@@ -51,6 +51,8 @@ class BulletScene {
   explicit BulletScene(const btVector3& gravity, const bullet::CouplingSettings& settings = {});
   virtual ~BulletScene() = default;
   virtual std::string name() const = 0;
+  /// Bullet internal ticks per 1/60 s frame this scene is meant to run with.
+  virtual int default_substeps() const { return 4; }
   /// Called before each frame with the time at its start (animates kinematic bodies).
   virtual void before_frame(double time) { (void)time; }
   /// Advances one frame: world.stepSimulation(frame_dt, substeps, frame_dt / substeps).

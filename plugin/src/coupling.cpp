@@ -89,6 +89,7 @@ void Coupling::post_tick(btDynamicsWorld* world, btScalar dt) {
 
 void Coupling::follow_bodies() {
   if (!m_system.finalized()) return;
+  take_back_momentum();
   copy_state_in();
   m_system.clamp_bound_rows();
 }
@@ -133,10 +134,15 @@ Index Coupling::bind_here(Index particle, btRigidBody* body) {
 //   6. copy momentum only back: each body receives the change of linear and angular momentum the
 //      deformables gave it (gravity stays Bullet's, so it is not applied twice), and wakes up;
 //   7. Bullet then integrates and collides the rigid bodies itself (the rest of its internal tick).
+// Step 6 is split around step 7 so that Bullet moves each body along the Newmark position update
+// (x^{n+1} = x^n + dt v~^{n+1/2}, section 3.3 step 2) and ends the tick with the Newmark velocity
+// v^{n+1}: handing v^{n+1} to Bullet's position update instead (x += dt v^{n+1}) is unstable for stiff
+// binding springs between rigid bodies, whose v^{n+1} flips sign every step. Bullet's own velocity
+// changes in step 7 (gravity, contacts, constraints) are kept on top.
 StepStats Coupling::tick(double dt) {
   copy_state_in();
   m_last = m_system.advance(dt);  // substeps when the tick exceeds the elastic forces' stable step
-  copy_momentum_out();
+  hand_over_position_velocity(dt);
   return m_last;
 }
 
@@ -144,8 +150,8 @@ void Coupling::copy_state_in() {
   RigidBodyParticles& bodies = m_system.rigid_bodies();
   const Index count = static_cast<Index>(m_bodies.size());
   if (m_v_in.cols() != count) {
-    m_v_in.setZero(3, count);
-    m_L_in.setZero(3, count);
+    for (Vectors3* a : {&m_v_in, &m_w_in, &m_x_in, &m_v_next, &m_w_next, &m_v_position, &m_w_position}) a->setZero(3, count);
+    m_q_in.assign(static_cast<std::size_t>(count), Quat::Identity());
   }
   for (Index b = 0; b < count; ++b) {
     const btRigidBody* body = m_bodies[b];
@@ -160,25 +166,48 @@ void Coupling::copy_state_in() {
     }
     bodies.v.col(b) = to_eigen(body->getLinearVelocity());
     bodies.w.col(b) = to_eigen(body->getAngularVelocity());
+    m_x_in.col(b) = bodies.x.col(b);
+    m_q_in[b] = bodies.q[b];
     m_v_in.col(b) = bodies.v.col(b);
-    m_L_in.col(b) = bodies.kinematic[b] ? Vec3::Zero() : bodies.angular_momentum(b);
+    m_w_in.col(b) = bodies.w.col(b);
   }
 }
 
-void Coupling::copy_momentum_out() {
+void Coupling::hand_over_position_velocity(double dt) {
   const RigidBodyParticles& bodies = m_system.rigid_bodies();
   for (std::size_t b = 0; b < m_bodies.size(); ++b) {
     const auto i = static_cast<Index>(b);
     if (bodies.kinematic[i]) continue;
     btRigidBody* body = m_bodies[b];
-    const Vec3 dv = bodies.v.col(i) - m_v_in.col(i);
-    // Angular momentum, not angular velocity: Bullet converts it with its own inertia at the
-    // orientation it still holds (the one copied in), so the body receives exactly dL.
-    const Vec3 dL = bodies.angular_momentum(i) - m_L_in.col(i);
-    if (dv.isZero(0.0) && dL.isZero(0.0)) continue;
-    body->setLinearVelocity(body->getLinearVelocity() + to_bullet(dv));
-    body->setAngularVelocity(body->getAngularVelocity() + body->getInvInertiaTensorWorld() * to_bullet(dL));
+    m_v_next.col(i) = bodies.v.col(i);
+    m_w_next.col(i) = bodies.w.col(i);
+    // The motion of the step's frame over dt, as a twist Bullet's integrator reproduces.
+    m_v_position.col(i) = (bodies.x.col(i) - m_x_in.col(i)) / dt;
+    const Eigen::AngleAxisd turn(bodies.q[i] * m_q_in[b].conjugate());
+    m_w_position.col(i) = turn.angle() * turn.axis() / dt;
+    // Impulses collisions gave the body during the step (applied to Bullet directly) stay with it.
+    const Vec3 dv_collisions = to_eigen(body->getLinearVelocity()) - m_v_in.col(i);
+    const Vec3 dw_collisions = to_eigen(body->getAngularVelocity()) - m_w_in.col(i);
+    body->setLinearVelocity(to_bullet(m_v_position.col(i) + dv_collisions));
+    body->setAngularVelocity(to_bullet(m_w_position.col(i) + dw_collisions));
     body->activate(true);
+  }
+  m_handed_over = true;
+}
+
+void Coupling::take_back_momentum() {
+  if (!m_handed_over) return;
+  m_handed_over = false;
+  const RigidBodyParticles& bodies = m_system.rigid_bodies();
+  for (std::size_t b = 0; b < m_bodies.size(); ++b) {
+    const auto i = static_cast<Index>(b);
+    if (bodies.kinematic[i]) continue;
+    btRigidBody* body = m_bodies[b];
+    // v^{n+1} from the Newmark step plus whatever Bullet changed in its own part of the tick.
+    const Vec3 bullet_dv = to_eigen(body->getLinearVelocity()) - m_v_position.col(i);
+    const Vec3 bullet_dw = to_eigen(body->getAngularVelocity()) - m_w_position.col(i);
+    body->setLinearVelocity(to_bullet(m_v_next.col(i) + bullet_dv));
+    body->setAngularVelocity(to_bullet(m_w_next.col(i) + bullet_dw));
   }
 }
 

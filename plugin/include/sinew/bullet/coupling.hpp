@@ -72,12 +72,18 @@ class Coupling {
   /// After Bullet's integration: bound rows move onto the bodies' new frames (they are W of them).
   void follow_bodies();
   void copy_state_in();
-  void copy_momentum_out();
+  /// Step 6, first half: Bullet's bodies get the velocity that moves them along the Newmark step.
+  void hand_over_position_velocity(double dt);
+  /// Step 6, second half (post-tick): they end the tick with the Newmark velocity plus Bullet's changes.
+  void take_back_momentum();
 
   btDynamicsWorld* m_world;
   System m_system;
   std::vector<btRigidBody*> m_bodies;  // rigid-body particle b stands for m_bodies[b]
-  Vectors3 m_v_in, m_L_in;             // twists copied in, to hand back only their change
+  // Per body: state copied in, the Newmark end-of-step twist and the position twist handed to Bullet.
+  Vectors3 m_x_in, m_v_in, m_w_in, m_v_next, m_w_next, m_v_position, m_w_position;
+  std::vector<Quat> m_q_in;
+  bool m_handed_over = false;
   void (*m_app_pre_tick)(btDynamicsWorld*, btScalar) = nullptr;
   void (*m_app_post_tick)(btDynamicsWorld*, btScalar) = nullptr;
   StepStats m_last;
