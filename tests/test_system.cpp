@@ -243,6 +243,69 @@ TEST(System, ClothBoundToKinematicBodyFollowsItExactly) {
   EXPECT_EQ(s.rigid_bodies().v.col(body), rb.v);  // prescribed: the cloth's pull does not change it
 }
 
+// Bindings change at run time: unbinding the top row (or switching its binding springs off) lets the
+// cloth fall freely from the bar it hung on.
+TEST(System, RemovingBindingsAtRunTimeReleasesTheCloth) {
+  for (bool springs : {false, true}) {
+    System s(SystemSettings{Vec3(0, -9.81, 0), false});
+    RigidBodySettings bar;
+    bar.kinematic = true;
+    bar.x = Vec3(0, 2.0, 0);
+    const Index body = s.add_rigid_body(bar);
+    scenes::ClothGridSettings c;
+    c.nx = c.ny = 8;
+    c.width = c.height = 0.7;
+    c.origin = Vec3(-0.35, 2.0, 0);
+    const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
+    std::vector<Index> springs_of_top;
+    for (int i = 0; i < 8; ++i) {
+      if (!springs) {
+        s.bind_rigid_here(cloth.node(i, 0), body);
+        continue;
+      }
+      const Index point = s.add_particle(s.particles().x.col(cloth.node(i, 0)), Vec3::Zero(), 0.0);
+      s.bind_rigid_here(point, body);
+      springs_of_top.push_back(s.add_binding_spring({cloth.node(i, 0), point, 1e4, 1.0}));
+    }
+    for (int f = 0; f < 30; ++f) s.advance(1.0 / 60);
+    auto top_height = [&] {
+      double y = 0;
+      for (int i = 0; i < 8; ++i) y += s.particles().x(1, cloth.node(i, 0)) / 8;
+      return y;
+    };
+    const double hanging = top_height();
+    EXPECT_NEAR(hanging, 2.0, 0.01) << (springs ? "springs" : "hard");
+    for (int i = 0; i < 8; ++i) {
+      if (springs) s.set_binding_spring_active(springs_of_top[static_cast<std::size_t>(i)], false);
+      else EXPECT_TRUE(s.unbind(cloth.node(i, 0)));
+    }
+    for (int f = 0; f < 30; ++f) s.advance(1.0 / 60);
+    // Free fall for 0.5 s from rest: 1.23 m (the cloth was still, so to within its internal motion).
+    EXPECT_NEAR(hanging - top_height(), 0.5 * 9.81 * 0.25, 0.05) << (springs ? "springs" : "hard");
+    EXPECT_EQ(s.rigid_bodies().x.col(body), bar.x);
+  }
+}
+
+// The force a binding carries: a 0.3 kg particle hanging at rest below a point hard-bound to a fixed
+// body (through an edge spring) or below a fixed anchor (through a binding spring) pulls with m g.
+TEST(System, BindingsReportTheForceTheyCarry) {
+  System s(SystemSettings{Vec3(0, -9.81, 0), false});
+  RigidBodySettings hook;
+  hook.kinematic = true;
+  const Index body = s.add_rigid_body(hook);
+  const Index p = s.add_particle(Vec3(0.1, 0, 0), Vec3::Zero(), 0.0);
+  s.bind_rigid_here(p, body);
+  const Index q = s.add_particle(Vec3(0.1, -0.2, 0), Vec3::Zero(), 0.3);
+  s.add_force(std::make_unique<EdgeSprings>(std::vector<EdgeSprings::Edge>{{p, q}}, s.particles().x, EdgeSpringsSettings{500.0, 5.0}));
+  const Index anchor = s.add_kinematic_particle(Vec3(1, 0, 0));
+  const Index r = s.add_particle(Vec3(1, 0, 0), Vec3::Zero(), 0.3);
+  const Index spring = s.add_binding_spring({r, anchor, 2e3, 1.0});
+  for (int f = 0; f < 600; ++f) s.advance(1.0 / 60);
+  const Vec3 weight(0, -0.3 * 9.81, 0);
+  EXPECT_NEAR((s.hard_binding_force(p) - weight).norm(), 0.0, 1e-6);
+  EXPECT_NEAR((s.binding_spring_force(spring) + weight).norm(), 0.0, 1e-6);  // on r: holds it up
+}
+
 // ---- bad input ----------------------------------------------------------------------------------
 
 template <typename F>

@@ -39,6 +39,29 @@ void HardBindings::add_rigid(Index particle, Index body, const Vec3& r0) {
   ++m_added;
 }
 
+bool HardBindings::remove(Index particle) {
+  for (Index k = 0; k < linear_count(); ++k) {
+    if (m_linear_particle[k] != particle) continue;
+    const Index begin = m_offset[k], end = m_offset[k + 1];
+    m_parent.erase(m_parent.begin() + begin, m_parent.begin() + end);
+    m_weight.erase(m_weight.begin() + begin, m_weight.begin() + end);
+    m_offset.erase(m_offset.begin() + k + 1);
+    for (std::size_t j = static_cast<std::size_t>(k) + 1; j < m_offset.size(); ++j) m_offset[j] -= end - begin;
+    m_linear_particle.erase(m_linear_particle.begin() + k);
+    m_linear_id.erase(m_linear_id.begin() + k);
+    return true;
+  }
+  for (Index k = 0; k < rigid_count(); ++k) {
+    if (m_rigid_particle[k] != particle) continue;
+    m_rigid_particle.erase(m_rigid_particle.begin() + k);
+    m_rigid_body.erase(m_rigid_body.begin() + k);
+    m_r0.erase(m_r0.begin() + k);
+    m_rigid_id.erase(m_rigid_id.begin() + k);
+    return true;
+  }
+  return false;
+}
+
 std::span<const Index> HardBindings::linear_parents(Index k) const {
   return {m_parent.data() + m_offset[k], static_cast<std::size_t>(m_offset[k + 1] - m_offset[k])};
 }

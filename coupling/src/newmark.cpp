@@ -31,7 +31,8 @@ void Newmark::allocate(const System& s) {
   }
   m_dynamic_body.assign(static_cast<std::size_t>(r), 0);
   for (Index b = 0; b < r; ++b) m_dynamic_body[b] = s.m_bodies.kinematic[b] ? 0 : 1;
-  for (Vectors3* a : {&m_x_n, &m_v_n, &m_x_np1, &m_v_tilde_n, &m_v_half, &m_f, &m_g, &m_tmp_v, &m_apply_f}) a->setZero(3, n);
+  for (Vectors3* a : {&m_x_n, &m_v_n, &m_x_np1, &m_v_tilde_n, &m_v_half, &m_f, &m_g, &m_tmp_v, &m_apply_f, &m_bound_force})
+    a->setZero(3, n);
   m_wrench.setZero(6, r);
   m_apply_wrench.setZero(6, r);
   for (Vectors3* a : {&m_body_x_n, &m_body_v_n, &m_body_w_n, &m_body_L_n, &m_body_x_np1}) a->setZero(3, r);
@@ -215,7 +216,7 @@ void Newmark::backward_euler_velocity(System& s, double dt, StepStats& stats) {
   for (auto& f : s.m_forces) f->update_position_state(p.x);
 
   const BindingSpringStep4 mode = s.m_step_settings.binding_springs_in_step4;
-  const Vec3 mapped = compute_forces(s, mode == BindingSpringStep4::explicit_end_of_step ? m_x_np1 : p.x);
+  const Vec3 mapped = compute_forces(s, mode == BindingSpringStep4::explicit_end_of_step ? m_x_np1 : p.x, true);
   stats.mapped_impulse += dt * mapped;
   // Rigid rows start from v~^n = (v_c, L^n): L is the momentum-like state, so w is recomputed with
   // the inertia at the half-step orientation.
@@ -272,13 +273,26 @@ void Newmark::extrapolate_velocity(System& s) {
 // are distributed to parents (W^T), then mapped onto soft particles (section 3: f_s = m_s a_target),
 // and only then are the binding springs added and distributed, so no soft particle inherits its own
 // spring's pull and damping is never mapped.
-Vec3 Newmark::compute_forces(System& s, const Vectors3& x_springs) {
+Vec3 Newmark::compute_forces(System& s, const Vectors3& x_springs, bool record_bound_forces) {
   auto& p = s.m_particles;
   auto& bodies = s.m_bodies;
+  const HardBindings& hard = s.m_hard;
+  auto record = [&](bool first) {
+    if (!record_bound_forces) return;
+    for (Index k = 0; k < hard.linear_count(); ++k) {
+      const Index i = hard.linear_particle(k);
+      m_bound_force.col(i) = (first ? Vec3::Zero() : Vec3(m_bound_force.col(i))) + Vec3(m_f.col(i));
+    }
+    for (Index k = 0; k < hard.rigid_count(); ++k) {
+      const Index i = hard.rigid_particle(k);
+      m_bound_force.col(i) = (first ? Vec3::Zero() : Vec3(m_bound_force.col(i))) + Vec3(m_f.col(i));
+    }
+  };
   m_f.setZero();
   m_wrench.setZero();
   for (const auto& f : s.m_forces) f->add_elastic_forces(p.x, m_f);
   gather_synchronized(s, m_f);
+  record(true);
   s.m_hard.distribute(m_f, m_wrench);
 
   const Vec3& g = s.m_settings.gravity;
@@ -320,6 +334,7 @@ Vec3 Newmark::compute_forces(System& s, const Vectors3& x_springs) {
   s.m_springs.add_elastic_forces(x_springs, m_g);
   m_f += m_g;
   gather_synchronized(s, m_f);
+  record(false);
   s.m_hard.distribute(m_f, m_wrench);
   return mapped_total;
 }

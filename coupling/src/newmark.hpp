@@ -12,6 +12,10 @@ namespace sinew {
 class Newmark {
  public:
   StepStats step(System& s, double dt);
+  /// Force a hard-bound row passed to its parents in the last step-4 force evaluation.
+  Vec3 bound_force(Index particle) const {
+    return particle < m_bound_force.cols() ? Vec3(m_bound_force.col(particle)) : Vec3::Zero();
+  }
 
  private:
   // The five steps of section 3.3, in order.
@@ -33,7 +37,7 @@ class Newmark {
   /// f, wrench: explicit elastic + external forces at the current x, distributed to parents and
   /// mapped onto soft particles, then the binding springs' -K x_springs, distributed. Returns the
   /// sum of mapped forces.
-  Vec3 compute_forces(System& s, const Vectors3& x_springs);
+  Vec3 compute_forces(System& s, const Vectors3& x_springs, bool record_bound_forces = false);
   /// c = M v_start + h F; rigid rows (m v + h f, L + h tau).
   void build_rhs(const System& s, double h, const Vectors3& v_start, const Vectors3& body_v, const Vectors3& body_L);
   /// Solves (M + h D + beta h K) y = c by preconditioned CG, y holding the initial guess.
@@ -58,6 +62,7 @@ class Newmark {
   std::vector<std::uint8_t> m_dynamic_body;
   Vectors3 m_x_n, m_v_n, m_x_np1, m_v_tilde_n, m_v_half;
   Vectors3 m_f, m_g, m_tmp_v, m_apply_f;
+  Vectors3 m_bound_force;  // force on each hard-bound row before W^T, from the last step 4
   Vectors6 m_wrench, m_apply_wrench;
   Vectors3 m_body_x_n, m_body_v_n, m_body_w_n, m_body_L_n, m_body_x_np1;
   std::vector<Quat> m_body_q_n, m_body_q_np1;

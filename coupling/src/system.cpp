@@ -61,12 +61,14 @@ Index System::add_particle(const Vec3& x, const Vec3& v, double mass) {
   m_input_mass.conservativeResize(i + 1);
   m_input_mass[i] = mass;
   m_particles.kind.push_back(ParticleKind::free);
+  m_input_kind.push_back(ParticleKind::free);
   return i;
 }
 
 Index System::add_kinematic_particle(const Vec3& x, const Vec3& v) {
   const Index i = add_particle(x, v, 0.0);
   m_particles.kind[i] = ParticleKind::kinematic;
+  m_input_kind[i] = ParticleKind::kinematic;
   return i;
 }
 
@@ -75,15 +77,44 @@ Index System::add_rigid_body(const RigidBodySettings& settings) {
   return sinew::add_rigid_body(m_bodies, settings);
 }
 
+void System::allow_binding_change(bool rigid) {
+  if (!m_finalized) return;
+  if (m_settings.absorb_bound_mass_into_rigid_bodies && (rigid || m_hard.rigid_count() > 0))
+    fail("hard bindings cannot change after set-up while points on rigid frames have their mass merged into the bodies "
+         "(SystemSettings::absorb_bound_mass_into_rigid_bodies)");
+  m_topology_changed = true;
+}
+
+bool System::unbind(Index particle) {
+  const Index code = m_hard.binding_of(particle);
+  allow_binding_change(code != HardBindings::unbound && code < 0);
+  return m_hard.remove(particle);
+}
+
+void System::set_binding_spring_active(Index spring, bool active) {
+  if (spring < 0 || spring >= m_springs.size()) fail("binding spring ", spring, " does not exist");
+  m_springs.set_active(spring, active);
+}
+
+Vec3 System::binding_spring_force(Index spring) const {
+  if (spring < 0 || spring >= m_springs.size()) fail("binding spring ", spring, " does not exist");
+  return m_springs.force(spring, m_particles.x, m_particles.v);
+}
+
+Vec3 System::hard_binding_force(Index particle) const {
+  if (m_hard.binding_of(particle) == HardBindings::unbound) fail("particle ", particle, " is not hard-bound");
+  return m_newmark ? m_newmark->bound_force(particle) : Vec3::Zero();
+}
+
 Index System::bind_linear(Index particle, std::span<const Index> parents, std::span<const double> weights) {
-  require_not_finalized("add a hard binding");
+  allow_binding_change(false);
   const Index id = m_hard.size();
   m_hard.add_linear(particle, parents, weights);
   return id;
 }
 
 Index System::bind_rigid(Index particle, Index body, const Vec3& r0) {
-  require_not_finalized("add a hard binding");
+  allow_binding_change(true);
   const Index id = m_hard.size();
   m_hard.add_rigid(particle, body, r0);
   return id;
@@ -130,12 +161,13 @@ void System::add_force_impl(std::unique_ptr<Force> force) {
 }
 
 void System::finalize() {
-  if (m_finalized) return;
+  if (m_finalized && !m_topology_changed) return;
   const Index n = m_particles.size();
   m_hard.flatten(n, m_bodies.size());
 
   // Particle kinds: hard-bound rows first, then soft-bound ones, each checked against the others.
   auto& kind = m_particles.kind;
+  kind = m_input_kind;
   for (Index k = 0; k < m_hard.linear_count(); ++k) {
     const Index p = m_hard.linear_particle(k);
     if (kind[p] == ParticleKind::kinematic) fail("particle ", p, " is kinematic and cannot be hard-bound");
@@ -189,6 +221,7 @@ void System::finalize() {
   clamp_bound_rows();
   m_newmark = std::make_unique<Newmark>();
   m_finalized = true;
+  m_topology_changed = false;
 }
 
 void System::absorb_bound_masses() {

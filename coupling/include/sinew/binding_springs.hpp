@@ -37,6 +37,14 @@ class BindingSprings {
   double stiffness(Index s) const { return m_k[s]; }
   double damping(Index s) const { return m_c[s]; }
 
+  /// Switches a spring off (it then exerts nothing) or back on.
+  void set_active(Index s, bool active) { m_k_active[s] = active ? m_k[s] : 0.0, m_c_active[s] = active ? m_c[s] : 0.0, m_active[s] = active; }
+  bool active(Index s) const { return m_active[s]; }
+  /// The force on end a, -k (x_a - x_b) - c (v_a - v_b); end b carries its opposite.
+  Vec3 force(Index s, const Vectors3& x, const Vectors3& v) const {
+    return -m_k_active[s] * (x.col(m_a[s]) - x.col(m_b[s])) - m_c_active[s] * (v.col(m_a[s]) - v.col(m_b[s]));
+  }
+
   /// f += -K x: the elastic part at positions x (3 x N).
   void add_elastic_forces(const Vectors3& x, Vectors3& f) const;
   /// f += -(alpha C + beta K) v: damping (alpha = 1, beta = 0), or the implicit operator's combined
@@ -52,6 +60,8 @@ class BindingSprings {
  private:
   std::vector<Index> m_a, m_b;
   std::vector<double> m_k, m_zeta, m_c;
+  std::vector<double> m_k_active, m_c_active;  // k and c, or 0 while switched off
+  std::vector<bool> m_active;
 };
 
 }  // namespace sinew

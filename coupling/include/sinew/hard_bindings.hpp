@@ -32,6 +32,9 @@ class HardBindings {
   /// mass (in the principal frame).
   void add_rigid(Index particle, Index body, const Vec3& r0);
 
+  /// Removes the hard binding of `particle`; returns false if it had none. Call flatten() afterwards.
+  bool remove(Index particle);
+
   /// Resolves chains so that no parent is bound, merging repeated parents. Throws on cycles and on
   /// linear bindings whose parents lie on different rigid bodies or mix rigid and free parents.
   void flatten(Index particle_count, Index rigid_count);

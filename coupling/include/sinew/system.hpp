@@ -92,16 +92,28 @@ class System {
   /// between steps.
   Index add_kinematic_particle(const Vec3& x, const Vec3& v = Vec3::Zero());
   Index add_rigid_body(const RigidBodySettings& settings);
+  // Hard bindings may be added and removed after set-up too (the next step redistributes masses); not
+  // those on rigid frames while SystemSettings::absorb_bound_mass_into_rigid_bodies merges their mass.
   /// Hard binding of `particle` to parents with barycentric weights (sum 1). Returns its index.
   Index bind_linear(Index particle, std::span<const Index> parents, std::span<const double> weights);
   /// Hard binding of `particle` to rigid body `body` at offset r0 in the body's principal frame.
   Index bind_rigid(Index particle, Index body, const Vec3& r0);
   /// Hard binding to a rigid body at the particle's current position.
   Index bind_rigid_here(Index particle, Index body);
+  /// Releases a hard-bound particle: it becomes free with the mass it was created with and keeps its
+  /// current position and velocity. Returns false if it was not hard-bound.
+  bool unbind(Index particle);
   Index add_soft_binding(const SoftBindingSettings& settings);
   /// A zero-rest-length binding spring between any two points (e.g. hard-bound points on two rigid
   /// bodies: a point joint, figure 13).
   Index add_binding_spring(const BindingSpringSettings& settings);
+  /// Switches a binding spring off (it then exerts nothing) or back on, at any time.
+  void set_binding_spring_active(Index spring, bool active);
+  /// The force binding spring `spring` exerts on its first end now (the second end carries its opposite).
+  Vec3 binding_spring_force(Index spring) const;
+  /// The force a hard-bound point passed to its parents (through W^T) in the last step's second solve:
+  /// what its elements and springs pulled it with, which the binding carried.
+  Vec3 hard_binding_force(Index particle) const;
   /// Adds a force; validates its indices now.
   template <typename F>
   F& add_force(std::unique_ptr<F> force) {
@@ -170,6 +182,8 @@ class System {
   void add_force_impl(std::unique_ptr<Force> force);
   void require_not_finalized(const char* what) const;
   void require_finalized(const char* what) const;
+  /// Bindings may change after set-up unless rigid-frame masses were merged into bodies.
+  void allow_binding_change(bool rigid);
   void absorb_bound_masses();
   void compute_effective_masses();
 
@@ -186,6 +200,8 @@ class System {
   VectorXd m_inverse_effective_mass;  // per row, 0 for infinite mass
   VectorXd m_effective_mass;          // per row, +inf for kinematic, m_e for bound rows
   bool m_finalized = false;
+  bool m_topology_changed = false;        // bindings changed since set-up: redo it before the next step
+  std::vector<ParticleKind> m_input_kind;  // free or kinematic, as created
   double m_time = 0.0;
   std::unique_ptr<Newmark> m_newmark;
 };
