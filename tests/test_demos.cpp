@@ -99,3 +99,46 @@ TEST(CurtainDemo, TwoRunsAreBitIdentical) {
 
 }  // namespace
 }  // namespace sinew
+
+#include "sinew/mesh/mesh_io.hpp"
+
+namespace sinew {
+namespace {
+
+// A cloth made from a mesh file and a soft volume from a tet file, dropped on Bullet's ground: both
+// come to rest on it (volume preserved by the corotated FEM, nothing below the ground).
+TEST(MeshScenes, ClothFromObjAndVolumeFromTetsRestOnTheGround) {
+  scenes::BulletWorld world(btVector3(0, -9.81, 0));
+  world.add_body(world.keep(std::make_unique<btStaticPlaneShape>(btVector3(0, 1, 0), 0)), 0.0, btTransform::getIdentity());
+  bullet::Coupling coupling(&world.world());
+  System& s = coupling.system();
+  mesh::TriangleMesh disc = mesh::load_triangle_mesh(SINEW_ASSETS_DIR "/disc.obj");
+  disc.vertices.row(1).array() += 0.5;
+  disc.vertices.row(0).array() += 0.6;
+  scenes::ClothMaterial cloth;
+  cloth.mass = 0.1;
+  cloth.stretch_stiffness = 100.0;
+  const auto cloth_particles = scenes::add_cloth_mesh(s, disc.vertices, disc.triangles, cloth);
+  mesh::TetMesh cube = mesh::load_tet_mesh(SINEW_ASSETS_DIR "/cube");
+  cube.vertices.row(1).array() += 0.3;
+  const auto cube_particles = scenes::add_volume(s, cube.vertices, cube.tets, scenes::VolumeMaterial{});
+  auto volume = [&] {
+    double v = 0;
+    for (const auto& t : cube.tets) {
+      const auto x = [&](int k) { return Vec3(s.particles().x.col(cube_particles[static_cast<std::size_t>(t[static_cast<std::size_t>(k)])])); };
+      v += (x(1) - x(0)).cross(x(2) - x(0)).dot(x(3) - x(0)) / 6;
+    }
+    return v;
+  };
+  for (int f = 0; f < 120; ++f) world.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+  EXPECT_GE(s.particles().x.row(1).minCoeff(), 0.0);
+  EXPECT_NEAR(volume(), 0.3 * 0.3 * 0.3, 0.1 * 0.027);  // squashed by its weight a little, not crushed
+  double cube_bottom = kInfinity, cloth_top = -kInfinity;
+  for (Index p : cube_particles) cube_bottom = std::min(cube_bottom, s.particles().x(1, p));
+  for (Index p : cloth_particles) cloth_top = std::max(cloth_top, s.particles().x(1, p));
+  EXPECT_NEAR(cube_bottom, 0.01, 2e-3);   // resting on the ground at the collision thickness
+  EXPECT_LT(cloth_top, 0.05);             // the disc lies flat
+}
+
+}  // namespace
+}  // namespace sinew
