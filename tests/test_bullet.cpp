@@ -267,8 +267,10 @@ std::unique_ptr<btCollisionShape> make_shape(const std::string& kind, btTransfor
     return std::make_unique<btCylinderShape>(btVector3(0.3, 0.1, 0.3));
   }
   if (kind == "cone") {
-    at.setOrigin(btVector3(0, -0.2, 0));
-    return std::make_unique<btConeShape>(0.3, 0.4);
+    // A flat cone (10.6 degree slope, below the 16.7 degree friction angle): the sheet stays on its
+    // apex instead of sliding off a steep one, which is physics, not a collision failure.
+    at.setOrigin(btVector3(0, -0.075, 0));
+    return std::make_unique<btConeShape>(0.8, 0.15);
   }
   if (kind == "convex_hull") {
     auto hull = std::make_unique<btConvexHullShape>();
