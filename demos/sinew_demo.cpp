@@ -1,19 +1,23 @@
 // sinew-demo <scene>: runs one of the Bullet demo scenes headless and prints a one-line JSON summary.
 //
-//   sinew-demo curtain|net|plates|hello [--frames N] [--dt SECONDS] [--substeps N]
+//   sinew-demo curtain|net|plates|hello [--frames N] [--dt SECONDS] [--substeps N] [--out DIR]
+//
+// --out DIR writes DIR/frame_0001.obj, ... : the deformable surfaces and every rigid body's shape.
 #include "bullet_scenes.hpp"
+#include "sinew/mesh/mesh_io.hpp"
 
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
 #include <string>
 
 namespace {
 
 [[noreturn]] void usage(const char* problem) {
-  std::fprintf(stderr, "sinew-demo: %s\nusage: sinew-demo curtain|net|plates|hello [--frames N] [--dt SECONDS] [--substeps N]\n", problem);
+  std::fprintf(stderr, "sinew-demo: %s\nusage: sinew-demo curtain|net|plates|hello [--frames N] [--dt SECONDS] [--substeps N] [--out DIR]\n", problem);
   std::exit(2);
 }
 
@@ -24,6 +28,7 @@ int main(int argc, char** argv) {
   const std::string scene_name = argv[1];
   int frames = 240, substeps = 0;  // 0: the scene's own
   double dt = 1.0 / 60.0;
+  std::string out;
   for (int i = 2; i < argc; ++i) {
     auto value = [&]() -> const char* {
       if (i + 1 >= argc) usage("a flag needs a value");
@@ -32,6 +37,7 @@ int main(int argc, char** argv) {
     if (!std::strcmp(argv[i], "--frames")) frames = std::atoi(value());
     else if (!std::strcmp(argv[i], "--dt")) dt = std::atof(value());
     else if (!std::strcmp(argv[i], "--substeps")) substeps = std::atoi(value());
+    else if (!std::strcmp(argv[i], "--out")) out = value();
     else usage("unknown flag");
   }
   if (frames < 1 || substeps < 0 || !(dt > 0)) usage("--frames, --substeps and --dt must be positive");
@@ -51,6 +57,18 @@ int main(int argc, char** argv) {
       drift = std::max(drift, scene->hard_binding_drift());
       stretch = std::max(stretch, scene->system().binding_springs().max_stretch(scene->system().particles().x));
       penetration = std::max(penetration, scene->coupling().deepest_penetration());
+      if (!out.empty()) {
+        std::filesystem::create_directories(out);
+        char file[64];
+        std::snprintf(file, sizeof file, "frame_%04d.obj", f + 1);
+        std::vector<sinew::mesh::TriangleMesh> meshes;
+        std::vector<std::string> names;
+        for (auto& surface : scene->surfaces()) {
+          meshes.push_back({std::move(surface.vertices), std::move(surface.triangles)});
+          names.push_back(surface.name);
+        }
+        sinew::mesh::save_triangle_meshes((std::filesystem::path(out) / file).string(), meshes, names);
+      }
     }
     const double energy_end = scene->total_energy();
     std::printf(

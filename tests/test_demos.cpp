@@ -142,3 +142,34 @@ TEST(MeshScenes, ClothFromObjAndVolumeFromTetsRestOnTheGround) {
 
 }  // namespace
 }  // namespace sinew
+
+#include <filesystem>
+
+namespace sinew {
+namespace {
+
+// What --out writes each frame: the deformable surfaces and every body's shape, as one mesh file.
+TEST(HelloDemo, FrameExportHoldsTheClothAndTheBodies) {
+  auto scene = make_bullet_scene("hello");
+  run(*scene, 3);
+  const auto surfaces = scene->surfaces();
+  ASSERT_EQ(surfaces.size(), 3u);  // cloth, ground, sphere
+  EXPECT_EQ(surfaces[0].vertices.cols(), 15 * 15);
+  EXPECT_EQ(surfaces[0].triangles.size(), 2u * 14 * 14);
+  EXPECT_EQ(surfaces[1].triangles.size(), 2u);
+  // The sphere's hull: every vertex within the margin of the 0.3 m radius around the body.
+  const Vec3 centre = position(scene->bullet().bodies()[1]);
+  for (Index v = 0; v < surfaces[2].vertices.cols(); ++v) EXPECT_NEAR((surfaces[2].vertices.col(v) - centre).norm(), 0.3, 0.05);
+  std::vector<mesh::TriangleMesh> meshes;
+  std::size_t triangles = 0;
+  for (const auto& s : surfaces) {
+    meshes.push_back({s.vertices, s.triangles});
+    triangles += s.triangles.size();
+  }
+  const std::string path = (std::filesystem::temp_directory_path() / "sinew_frame.obj").string();
+  mesh::save_triangle_meshes(path, meshes, {"cloth", "ground", "sphere"});
+  EXPECT_EQ(mesh::load_triangle_mesh(path).triangles.size(), triangles);
+}
+
+}  // namespace
+}  // namespace sinew

@@ -1,6 +1,9 @@
 #include "bullet_scenes.hpp"
 
+#include <BulletCollision/CollisionShapes/btShapeHull.h>
+
 #include <cmath>
+#include <map>
 #include <numbers>
 
 namespace sinew::scenes {
@@ -55,6 +58,7 @@ class Curtain final : public BulletScene {
     c.mass = 0.5;
     c.origin = Vec3(-0.9, ring_y - ring_R, 0.0);
     m_cloth = add_cloth_grid(system(), c);
+    add_surface("curtain", m_cloth.triangles);
     for (int i = 0; i < 10; ++i) {
       btRigidBody* body = m_world.add_body(ring, ring_mass, at(btVector3(btScalar(-0.9 + 0.2 * i), btScalar(ring_y), 0)), ring_inertia);
       body->setFriction(0.15);
@@ -110,6 +114,7 @@ class Hello final : public BulletScene {
     c.across = Vec3::UnitX();
     c.down = Vec3::UnitZ();
     const ClothGrid cloth = add_cloth_grid(system(), c);
+    add_surface("cloth", cloth.triangles);
     const Index top = system().add_particle(Vec3(0, 2.3, 0), Vec3::Zero(), 0.0);
     coupling().bind_here(top, sphere);
     system().add_binding_spring({top, cloth.node(7, 7), 1e4, 1.0});
@@ -210,6 +215,7 @@ class Plates final : public BulletScene {
       const double y_top = s == 0 ? top - 0.04 : top - gap * s - thick / 2;
       c.origin = Vec3(-width / 2, y_top, 0.0);
       const ClothGrid sheet = add_cloth_grid(system(), c);
+      add_surface("sheet" + std::to_string(s), sheet.triangles);
       for (int i = 0; i < c.nx; ++i) {
         btRigidBody* above = s == 0 ? holders[i < c.nx / 2 ? 0 : 1] : plates[static_cast<std::size_t>(s - 1)];
         if (s == 0 && i == c.nx / 2) continue;  // the middle of the top edge hangs free between the holders
@@ -309,6 +315,93 @@ double BulletScene::total_energy() {
   for (Index i = 0; i < s.particles().size(); ++i)
     if (s.particles().kind[i] == ParticleKind::free) e += 0.5 * s.particles().mass[i] * s.particles().v.col(i).squaredNorm();
   return e;
+}
+
+namespace {
+
+// Appends a collision shape at a pose as triangles: convex shapes through their hull, compounds by
+// child, concave shapes by their triangles, a static plane as a 20 m square.
+struct TriangleSink : btTriangleCallback {
+  BulletScene::Surface* out;
+  btTransform frame;
+  void processTriangle(btVector3* t, int, int) override {
+    const Index base = out->vertices.cols();
+    out->vertices.conservativeResize(3, base + 3);
+    for (int k = 0; k < 3; ++k) out->vertices.col(base + k) = to_eigen(frame * t[k]);
+    out->triangles.push_back({base, base + 1, base + 2});
+  }
+};
+
+void triangulate(const btCollisionShape* shape, const btTransform& frame, BulletScene::Surface& out) {
+  if (shape->getShapeType() == COMPOUND_SHAPE_PROXYTYPE) {
+    const auto* compound = static_cast<const btCompoundShape*>(shape);
+    for (int i = 0; i < compound->getNumChildShapes(); ++i)
+      triangulate(compound->getChildShape(i), frame * compound->getChildTransform(i), out);
+    return;
+  }
+  if (shape->getShapeType() == STATIC_PLANE_PROXYTYPE) {
+    const auto* plane = static_cast<const btStaticPlaneShape*>(shape);
+    const btVector3 n = plane->getPlaneNormal();
+    btVector3 u, w;
+    btPlaneSpace1(n, u, w);
+    const btVector3 c = n * plane->getPlaneConstant();
+    btVector3 corners[4] = {c + 10 * (u + w), c + 10 * (u - w), c - 10 * (u + w), c - 10 * (u - w)};
+    TriangleSink sink;
+    sink.out = &out;
+    sink.frame = frame;
+    btVector3 a[3] = {corners[0], corners[1], corners[2]}, b[3] = {corners[0], corners[2], corners[3]};
+    sink.processTriangle(a, 0, 0);
+    sink.processTriangle(b, 0, 1);
+    return;
+  }
+  if (shape->isConvex()) {
+    btShapeHull hull(static_cast<const btConvexShape*>(shape));
+    hull.buildHull(shape->getMargin());
+    const Index base = out.vertices.cols();
+    out.vertices.conservativeResize(3, base + hull.numVertices());
+    for (int v = 0; v < hull.numVertices(); ++v) out.vertices.col(base + v) = to_eigen(frame * hull.getVertexPointer()[v]);
+    for (int t = 0; t + 2 < hull.numIndices(); t += 3)
+      out.triangles.push_back({base + hull.getIndexPointer()[t], base + hull.getIndexPointer()[t + 1], base + hull.getIndexPointer()[t + 2]});
+    return;
+  }
+  if (shape->isConcave()) {
+    TriangleSink sink;
+    sink.out = &out;
+    sink.frame = frame;
+    const btVector3 big(1e4, 1e4, 1e4);
+    static_cast<const btConcaveShape*>(shape)->processAllTriangles(&sink, -big, big);
+  }
+}
+
+}  // namespace
+
+std::vector<BulletScene::Surface> BulletScene::surfaces() {
+  std::vector<Surface> out;
+  const Vectors3& x = system().particles().x;
+  for (std::size_t s = 0; s < m_surface_triangles.size(); ++s) {
+    Surface surface;
+    surface.name = m_surface_names[s];
+    std::map<Index, Index> local;  // particle -> vertex, in particle order (deterministic)
+    for (const auto& t : m_surface_triangles[s])
+      for (Index p : t) local.emplace(p, 0);
+    surface.vertices.resize(3, static_cast<Index>(local.size()));
+    Index next = 0;
+    for (auto& [particle, vertex] : local) {
+      vertex = next;
+      surface.vertices.col(next++) = x.col(particle);
+    }
+    for (const auto& t : m_surface_triangles[s]) surface.triangles.push_back({local[t[0]], local[t[1]], local[t[2]]});
+    out.push_back(std::move(surface));
+  }
+  for (std::size_t b = 0; b < m_world.bodies().size(); ++b) {
+    const btRigidBody* body = m_world.bodies()[b];
+    Surface surface;
+    surface.name = "body" + std::to_string(b);
+    surface.vertices.resize(3, 0);
+    triangulate(body->getCollisionShape(), body->getWorldTransform(), surface);
+    if (!surface.triangles.empty()) out.push_back(std::move(surface));
+  }
+  return out;
 }
 
 std::vector<std::string> bullet_scene_names() { return {"curtain", "net", "plates", "hello"}; }

@@ -68,10 +68,26 @@ class BulletScene {
   /// Deformable kinetic and potential energy plus the rigid bodies' [J].
   double total_energy();
 
+  /// A triangle surface drawn for the scene: positions 3 x V and triangles indexing them.
+  struct Surface {
+    std::string name;
+    Vectors3 vertices;
+    std::vector<std::array<Index, 3>> triangles;
+  };
+  /// The deformable surfaces (cloth, volume skins) at the current state and every rigid body's
+  /// collision shape, triangulated at its current pose (what --out exports each frame).
+  std::vector<Surface> surfaces();
+
  protected:
   BulletWorld m_world;
   std::unique_ptr<bullet::Coupling> m_coupling;
-  std::vector<btRigidBody*> m_bound_bodies;  // body of each rigid-binding parent, by rigid particle
+  /// Scenes register the triangles of each deformable surface (particle indices) for drawing.
+  void add_surface(std::string name, std::vector<std::array<Index, 3>> triangles) {
+    m_surface_names.push_back(std::move(name));
+    m_surface_triangles.push_back(std::move(triangles));
+  }
+  std::vector<std::string> m_surface_names;
+  std::vector<std::vector<std::array<Index, 3>>> m_surface_triangles;
   double m_time = 0.0;
 };
 
