@@ -3,6 +3,8 @@
 #include "sinew/bullet/collisions.hpp"
 #include "sinew/bullet/coupling.hpp"
 
+#include <BulletDynamics/Featherstone/btMultiBodyConstraintSolver.h>
+#include <BulletDynamics/Featherstone/btMultiBodyDynamicsWorld.h>
 #include <btBulletDynamicsCommon.h>
 #include <gtest/gtest.h>
 
@@ -347,6 +349,60 @@ TEST_P(ClothOnShape, RestsOnItWithoutPenetrating) {
 INSTANTIATE_TEST_SUITE_P(EveryShape, ClothOnShape,
                          ::testing::Values("plane", "box", "sphere", "capsule", "cylinder", "cone", "convex_hull",
                                            "compound", "triangle_mesh"));
+
+}  // namespace
+}  // namespace sinew
+
+namespace sinew {
+namespace {
+
+// The coupling attaches to a Featherstone multibody world as well, with its ordinary rigid bodies as
+// parents: a cloth hung from a free-falling box falls with it at g.
+TEST(BulletCoupling, AttachesToAMultibodyWorld) {
+  btDefaultCollisionConfiguration configuration;
+  btCollisionDispatcher dispatcher(&configuration);
+  btDbvtBroadphase broadphase;
+  btMultiBodyConstraintSolver solver;
+  btMultiBodyDynamicsWorld world(&dispatcher, &broadphase, &solver, &configuration);
+  world.setGravity(btVector3(0, -9.81, 0));
+  btBoxShape shape(btVector3(0.3, 0.05, 0.05));
+  btVector3 inertia;
+  shape.calculateLocalInertia(1, inertia);
+  btDefaultMotionState state(btTransform(btQuaternion::getIdentity(), btVector3(0, 1, 0)));
+  btRigidBody box(btRigidBody::btRigidBodyConstructionInfo(1, &state, &shape, inertia));
+  world.addRigidBody(&box);
+  {
+    bullet::CouplingSettings settings;
+    settings.collisions = false;
+    bullet::Coupling coupling(&world, settings);
+    System& s = coupling.system();
+    const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, small_cloth(Vec3(-0.25, 0.95, 0)));
+    for (int i = 0; i < 6; ++i) coupling.bind_here(cloth.node(i, 0), &box);
+    for (int i = 0; i < 60; ++i) world.stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+    const double t = 0.25;
+    EXPECT_NEAR(box.getCenterOfMassPosition().y(), 1.0 - 0.5 * 9.81 * t * t, 0.02);  // Bullet's symplectic Euler
+    EXPECT_LT(s.max_hard_binding_drift(), 1e-12);
+    EXPECT_TRUE(s.particles().x.allFinite());
+  }
+  world.removeRigidBody(&box);
+}
+
+// A cloth thrown at 5 m/s onto a 1 cm plate does not pass through it (0.02 m per tick > the plate).
+TEST(BulletCoupling, FastClothDoesNotTunnelThroughAThinPlate) {
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  btTransform at;
+  at.setIdentity();
+  at.setOrigin(btVector3(0, 0.5, 0));
+  bw.add_box(btVector3(0.6, 0.005, 0.6), 0.0, at);
+  bullet::Coupling coupling(&bw.world);
+  System& s = coupling.system();
+  scenes::ClothGridSettings c = small_cloth(Vec3(-0.25, 0.8, -0.25));
+  c.down = Vec3::UnitZ();
+  const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
+  for (Index n : cloth.nodes) s.particles().v.col(n) = Vec3(0, -5, 0);
+  for (int tick = 0; tick < 120; ++tick) bw.world.stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+  EXPECT_GT(s.particles().x.row(1).minCoeff(), 0.5 + 0.005);  // every particle is still above the plate
+}
 
 }  // namespace
 }  // namespace sinew
