@@ -1,5 +1,8 @@
-// Outside project: a Bullet world with a falling box and one particle hard-bound to it.
+// Outside project: a Bullet world with a falling box and one particle hard-bound to it, and a mesh
+// written and read back through sinew::mesh and made into a Bullet convex hull.
 #include <sinew/bullet/coupling.hpp>
+#include <sinew/bullet/shapes.hpp>
+#include <sinew/mesh/mesh_io.hpp>
 
 #include <btBulletDynamicsCommon.h>
 
@@ -20,6 +23,19 @@ int main() {
   btRigidBody box(btRigidBody::btRigidBodyConstructionInfo(1, &state, &shape, inertia));
   world.addRigidBody(&box);
   int status = 1;
+  {
+    sinew::mesh::TriangleMesh tet;
+    tet.vertices.resize(3, 4);
+    tet.vertices << 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1;
+    tet.triangles = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+    sinew::mesh::save_triangle_meshes("tet.obj", {tet}, {"tet"});
+    const sinew::mesh::TriangleMesh loaded = sinew::mesh::load_triangle_mesh("tet.obj");
+    const sinew::bullet::MeshShape hull = sinew::bullet::convex_hull_shape(loaded.vertices);
+    if (loaded.triangles.size() != 4 || hull.shape == nullptr) {
+      std::printf("mesh round trip failed\n");
+      return 1;
+    }
+  }
   {
     sinew::bullet::Coupling coupling(&world);
     const auto p = coupling.system().add_particle({0.1, 0.9, 0}, {0, 0, 0}, 0.0);
