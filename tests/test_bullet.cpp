@@ -8,6 +8,7 @@
 #include <btBulletDynamicsCommon.h>
 #include <gtest/gtest.h>
 
+#include <array>
 #include <memory>
 
 namespace sinew {
@@ -234,6 +235,39 @@ TEST(BulletCoupling, ClothFollowsStaticAndKinematicParentsExactly) {
   }
   EXPECT_LT(s.max_hard_binding_drift(), 1e-12);
   EXPECT_EQ(s.particles().x.col(corner), pinned);  // the static parent never moves, nor does its point
+}
+
+// A point inside a triangle of the cloth tied to a static body by a binding spring (Coupling::attach):
+// once the cloth hangs at rest, statics says the spring carries the cloth's whole weight, and a
+// zero-rest-length spring of stiffness k is then stretched by m g / k.
+TEST(BulletCoupling, PointInsideATriangleHangsTheClothByABindingSpring) {
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  btTransform at;
+  at.setIdentity();
+  at.setOrigin(btVector3(0, 1.2, 0));
+  btRigidBody* hook = bw.add_box(btVector3(0.02, 0.02, 0.02), 0.0, at);  // static
+  bullet::Coupling coupling(&bw.world);
+  System& s = coupling.system();
+  scenes::ClothGridSettings c = small_cloth(Vec3(-0.25, 1.0, 0));
+  c.stretch_damping = 0.5;
+  const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
+  const std::array<Index, 3> parents = {cloth.node(2, 0), cloth.node(3, 0), cloth.node(2, 1)};
+  // Half way across the top row, above the cloth's centre of mass, so it hangs without swinging.
+  const std::array<double, 3> weights = {0.3, 0.5, 0.2};
+  const Index point = s.add_embedded_point(parents, weights);
+  const Vec3 start = s.particles().x.col(point);
+  const double k = 2e4;
+  const Index spring = coupling.attach(point, hook, start - Vec3(0, 1.2, 0), k);
+  EXPECT_THROW(s.add_embedded_point(parents, std::array<double, 3>{0.4, 0.4, 0.3}), Error);  // sums to 1.1
+  for (int frame = 0; frame < 240; ++frame) bw.world.stepSimulation(btScalar(1.0 / 60), 8, btScalar(1.0 / 240));
+  const double weight = c.mass * 9.81;
+  const Vec3 force = s.binding_spring_force(spring);  // on the cloth's point
+  EXPECT_NEAR(force.y(), weight, 0.01 * weight);
+  EXPECT_LT(std::hypot(force.x(), force.z()), 0.01 * weight);
+  EXPECT_NEAR((s.particles().x.col(point) - start).norm(), weight / k, 0.02 * weight / k);
+  Vec3 embedded = Vec3::Zero();
+  for (int i = 0; i < 3; ++i) embedded += weights[i] * s.particles().x.col(parents[i]);
+  EXPECT_LT((s.particles().x.col(point) - embedded).norm(), 1e-12);
 }
 
 }  // namespace

@@ -127,6 +127,22 @@ Index System::bind_rigid_here(Index particle, Index body) {
   return bind_rigid(particle, body, r0);
 }
 
+Index System::add_embedded_point(std::span<const Index> parents, std::span<const double> weights) {
+  require_not_finalized("add an embedded point");
+  const Index point = m_particles.size();
+  if (parents.size() != weights.size())
+    fail("embedded point ", point, ": ", parents.size(), " parents but ", weights.size(), " weights");
+  Vec3 x = Vec3::Zero(), v = Vec3::Zero();
+  for (std::size_t i = 0; i < parents.size(); ++i) {
+    if (parents[i] < 0 || parents[i] >= point) fail("embedded point ", point, ": parent ", parents[i], " does not exist");
+    x += weights[i] * m_particles.x.col(parents[i]);
+    v += weights[i] * m_particles.v.col(parents[i]);
+  }
+  bind_linear(point, parents, weights);  // validates the weights before the particle exists
+  add_particle(x, v, 0.0);
+  return point;
+}
+
 Index System::add_soft_binding(const SoftBindingSettings& s) {
   require_not_finalized("add a soft binding");
   const Index id = m_soft.size();

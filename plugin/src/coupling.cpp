@@ -128,6 +128,21 @@ Index Coupling::bind_here(Index particle, btRigidBody* body) {
   return m_system.bind_rigid_here(particle, rigid_particle(body));
 }
 
+Index Coupling::add_body_point(btRigidBody* body, const Vec3& local) {
+  const Index b = rigid_particle(body);
+  const RigidBodyParticles& bodies = m_system.rigid_bodies();
+  const Vec3 r = bodies.q[b] * local;
+  const Vec3 v = bodies.v.col(b) + bodies.w.col(b).cross(r);
+  const Index point = m_system.add_particle(bodies.x.col(b) + r, v, 0.0);
+  m_system.bind_rigid(point, b, local);
+  return point;
+}
+
+Index Coupling::attach(Index point, btRigidBody* body, const Vec3& local, double stiffness, double damping_ratio) {
+  const Index end = add_body_point(body, local);
+  return m_system.add_binding_spring({point, end, stiffness, damping_ratio});
+}
+
 // Section 5, in order:
 //   1. copy each Bullet body's state into its rigid-body particle;
 //   2-5. the Newmark step with the rigid-body particles as 6-DOF parents; collisions for deformables only;

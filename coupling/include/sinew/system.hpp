@@ -100,6 +100,10 @@ class System {
   Index bind_rigid(Index particle, Index body, const Vec3& r0);
   /// Hard binding to a rigid body at the particle's current position.
   Index bind_rigid_here(Index particle, Index body);
+  /// A massless point embedded in the deformable: hard-bound to a segment, triangle or tet (or a
+  /// single node, weight 1) by barycentric weights that sum to one; an end for binding springs.
+  /// Returns the new particle.
+  Index add_embedded_point(std::span<const Index> parents, std::span<const double> weights);
   /// Releases a hard-bound particle: it becomes free with the mass it was created with and keeps its
   /// current position and velocity. Returns false if it was not hard-bound.
   bool unbind(Index particle);

@@ -57,6 +57,13 @@ class Coupling {
   Index bind(Index particle, btRigidBody* body, const Vec3& local);
   /// Hard-binds `particle` to `body` where the particle is now.
   Index bind_here(Index particle, btRigidBody* body);
+  /// A massless point hard-bound to `body` at `local`: an end for binding springs. Returns the particle.
+  Index add_body_point(btRigidBody* body, const Vec3& local);
+  /// Ties `point` (a node, a point inside a triangle or tet from System::add_embedded_point, or a body
+  /// point) to `body` at `local` by a zero-rest-length binding spring, implicit in the step (eq. 5),
+  /// damped with ratio `damping_ratio` of critical. Returns the spring (System::binding_spring_force
+  /// reads what it carries; System::set_binding_spring_active releases it).
+  Index attach(Index point, btRigidBody* body, const Vec3& local, double stiffness, double damping_ratio = 1.0);
 
   /// One coupled tick of size dt (what the pre-tick callback runs): section 5, steps 1-6.
   StepStats tick(double dt);
