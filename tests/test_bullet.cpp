@@ -270,6 +270,44 @@ TEST(BulletCoupling, PointInsideATriangleHangsTheClothByABindingSpring) {
   EXPECT_LT((s.particles().x.col(point) - embedded).norm(), 1e-12);
 }
 
+// Removing bindings at run time in a Bullet scene: a cloth held by a rod (hard bindings on its top row)
+// and by a binding spring to a hook is let go between two stepSimulation calls. From then on only
+// gravity acts on it from outside, so its centre of mass follows y = y0 + v0 t - g t^2 / 2 exactly.
+TEST(BulletCoupling, RemovingBindingsAtRunTimeReleasesTheCloth) {
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  btTransform at;
+  at.setIdentity();
+  at.setOrigin(btVector3(0, 1.05, 0));  // clear of the cloth by more than the collision thickness
+  btRigidBody* rod = bw.add_box(btVector3(0.4, 0.01, 0.01), 0.0, at);
+  bullet::Coupling coupling(&bw.world);
+  System& s = coupling.system();
+  const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, small_cloth(Vec3(-0.25, 1.0, 0)));
+  for (int i = 0; i < 6; ++i) coupling.bind_here(cloth.node(i, 0), rod);
+  const Index spring = coupling.attach(cloth.node(2, 5), rod, Vec3(0, -0.65, 0), 1e3);
+  auto centre = [&] {
+    Vec3 mx = Vec3::Zero(), mv = Vec3::Zero();
+    double m = 0.0;
+    for (Index p : cloth.nodes) {
+      const double mp = s.input_mass()[p];
+      mx += mp * s.particles().x.col(p), mv += mp * s.particles().v.col(p), m += mp;
+    }
+    return std::pair<Vec3, Vec3>(mx / m, mv / m);
+  };
+  for (int frame = 0; frame < 30; ++frame) bw.world.stepSimulation(btScalar(1.0 / 60), 8, btScalar(1.0 / 240));
+  EXPECT_GT(s.particles().x.row(1).minCoeff(), 0.3);  // held
+  for (int i = 0; i < 6; ++i) EXPECT_TRUE(s.unbind(cloth.node(i, 0)));
+  s.set_binding_spring_active(spring, false);
+  const auto [x0, v0] = centre();
+  const int frames = 30;
+  for (int frame = 0; frame < frames; ++frame) bw.world.stepSimulation(btScalar(1.0 / 60), 8, btScalar(1.0 / 240));
+  const double t = frames / 60.0;
+  const auto [x1, v1] = centre();
+  EXPECT_NEAR(x1.y(), x0.y() + v0.y() * t - 0.5 * 9.81 * t * t, 1e-8);
+  EXPECT_NEAR(v1.y(), v0.y() - 9.81 * t, 1e-8);
+  EXPECT_NEAR(x1.x(), x0.x() + v0.x() * t, 1e-8);
+  EXPECT_NEAR(s.binding_spring_force(spring).norm(), 0.0, 0.0);
+}
+
 }  // namespace
 }  // namespace sinew
 
