@@ -102,10 +102,7 @@ class Hello final : public BulletScene {
     btCollisionShape* ball = m_world.keep(std::make_unique<btSphereShape>(0.3));
     btRigidBody* sphere = m_world.add_body(ball, 1.0, at(btVector3(0, 2.0, 0)));
     sphere->setActivationState(DISABLE_DEACTIVATION);
-    // The lines that add sinew to this program:
-    //   sinew::bullet::Coupling coupling(&world);
-    //   auto cloth = sinew::scenes::add_cloth_grid(coupling.system(), settings);
-    //   coupling.bind_here(cloth.node(7, 7), sphere);
+    // The same cloth as the plain program demos/hello.cpp adds.
     ClothGridSettings c;
     c.nx = c.ny = 15;
     c.width = c.height = 1.2;
@@ -115,9 +112,7 @@ class Hello final : public BulletScene {
     c.down = Vec3::UnitZ();
     const ClothGrid cloth = add_cloth_grid(system(), c);
     add_surface("cloth", cloth.triangles);
-    const Index top = system().add_particle(Vec3(0, 2.3, 0), Vec3::Zero(), 0.0);
-    coupling().bind_here(top, sphere);
-    system().add_binding_spring({top, cloth.node(7, 7), 1e4, 1.0});
+    coupling().attach(cloth.node(7, 7), sphere, Vec3(0, 0.3, 0), 1e4);
   }
   std::string name() const override { return "hello"; }
 };
