@@ -338,6 +338,54 @@ TEST(EdgeSprings, DampingDiagonalMatchesProbedBlocks) {
   expect_damping_diagonal_matches_probes(springs, cloth.deformed(rng));
 }
 
+// The implicit products are D v + b K+ v: with every edge stretched K+ is the exact differential
+// (checked against damping + differential); compressed, K+ drops the transverse term and stays
+// symmetric negative semi-definite while the exact differential is not; the Jacobi diagonal is the
+// probed third of the trace.
+TEST(EdgeSprings, ImplicitProductsAreDampingPlusDefiniteDifferential) {
+  std::mt19937 rng(11);
+  const Cloth cloth;
+  EdgeSprings springs = make_springs(cloth);
+  const Index n = cloth.rest.cols();
+  auto implicit = [&](const Vectors3& v, double b) {
+    Vectors3 f = Vectors3::Zero(3, n);
+    springs.add_implicit_products(v, b, f);
+    return f;
+  };
+  ASSERT_TRUE(springs.has_definite_differentials());
+  springs.update_position_state(1.1 * cloth.rest);  // every edge stretched by 10%
+  for (int trial = 0; trial < 3; ++trial) {
+    const Vectors3 v = random_like(cloth.rest, 1.0, rng);
+    EXPECT_LT(relative_error(implicit(v, 0.25), damping_forces(springs, v) + 0.25 * differentials(springs, v)), 1e-13);
+  }
+  springs.update_position_state(0.8 * cloth.rest);  // every edge compressed
+  for (int trial = 0; trial < 20; ++trial) {
+    const Vectors3 u = random_like(cloth.rest, 1.0, rng), v = random_like(cloth.rest, 1.0, rng);
+    const Vectors3 ku = implicit(u, 1.0) - damping_forces(springs, u), kv = implicit(v, 1.0) - damping_forces(springs, v);
+    const double scale = flat(u).norm() * flat(kv).norm();
+    EXPECT_NEAR(flat(u).dot(flat(kv)), flat(v).dot(flat(ku)), 1e-12 * scale);
+    EXPECT_LE(flat(u).dot(flat(ku)), 1e-12 * scale);
+  }
+  // Out of the (flat) cloth's plane every edge moves transversally, where the exact differential of
+  // a compressed spring pushes outwards (buckling).
+  Vectors3 out_of_plane = Vectors3::Zero(3, n);
+  out_of_plane.row(2) = random_like(cloth.rest, 1.0, rng).row(2);
+  EXPECT_GT(flat(out_of_plane).dot(flat(differentials(springs, out_of_plane))), 0.0);  // what the clamp is for
+  EXPECT_LE(flat(out_of_plane).dot(flat(implicit(out_of_plane, 1.0) - damping_forces(springs, out_of_plane))), 0.0);
+  VectorXd diag = VectorXd::Zero(n);
+  springs.update_position_state(1.1 * cloth.rest);
+  springs.add_implicit_diagonal(0.25, diag);
+  for (Index i = 0; i < n; ++i) {
+    double trace = 0.0;
+    for (Index c = 0; c < 3; ++c) {
+      Vectors3 e = Vectors3::Zero(3, n);
+      e(c, i) = 1.0;
+      trace += implicit(e, 0.25)(c, i);
+    }
+    EXPECT_NEAR(diag[i], -trace / 3.0, 1e-12 * diag.maxCoeff()) << "particle " << i;
+  }
+}
+
 TEST(EdgeSprings, ForcesBalanceAndEnergyIsRigidInvariant) {
   std::mt19937 rng(5);
   const Cloth cloth;

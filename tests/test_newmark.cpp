@@ -1,4 +1,5 @@
 // The semi-implicit Newmark step (Sifakis et al. 2007, section 3.3) against closed-form solutions.
+#include "sinew/forces/edge_springs.hpp"
 #include "sinew/system.hpp"
 #include "test_forces_local.hpp"
 #include "test_util.hpp"
@@ -55,6 +56,40 @@ TEST(Newmark, ConstantForceIsIntegratedExactly) {
   const double t = 60 * dt;
   const Vec3 expected = Vec3(1, 2, 0) * t + 0.5 * s.settings().gravity * t * t;
   EXPECT_NEAR((s.particles().x.col(p) - expected).norm(), 0.0, 1e-12);
+}
+
+// Implicit elasticity on a spring of rest length 1 between a fixed point and a unit mass moving along
+// the spring (linear there: f = -k (x - 1)). With h = dt/2 and s = k h^2 / m both solves give
+// v~ = (v - k h u) / (1 + s) and, at x^{n+1/2}, one step maps (u, v) = (x - 1, v) to
+//   u' = [(1 - s) u + dt v] / (1 + s),   v' = [-2 k h u + (1 - 2 s - s^2) v] / (1 + s)^2,
+// whose determinant (1 + s^2) / (1 + s)^2 < 1: stable and damping at any step, however stiff.
+TEST(Newmark, ImplicitElasticityMatchesItsClosedFormStepAndIsStableAtAnyStep) {
+  for (const double dt : {1e-3, 0.05, 1.0}) {
+    System s(kNoGravity);
+    s.step_settings().implicit_elasticity = true;
+    s.step_settings().cg_tolerance = 1e-15;
+    const double k = 400.0;
+    const Index anchor = s.add_kinematic_particle(Vec3::Zero());
+    const Index p = s.add_particle(Vec3(1.1, 0, 0), Vec3(0.3, 0, 0), 1.0);
+    Vectors3 rest(3, 2);
+    rest << 0, 1, 0, 0, 0, 0;
+    s.add_force(std::make_unique<EdgeSprings>(std::vector<EdgeSprings::Edge>{{anchor, p}}, rest,
+                                              EdgeSpringsSettings{k, 0.0}));
+    s.finalize();
+    EXPECT_EQ(s.stable_dt(), kInfinity);  // the spring no longer limits the step
+    double u = 0.1, v = 0.3;
+    const double h = 0.5 * dt, sh = k * h * h;
+    for (int step = 0; step < 50; ++step) {
+      s.step(dt);
+      const double u_next = ((1 - sh) * u + dt * v) / (1 + sh);
+      const double v_next = (-2 * k * h * u + (1 - 2 * sh - sh * sh) * v) / ((1 + sh) * (1 + sh));
+      u = u_next, v = v_next;
+      ASSERT_NEAR(s.particles().x(0, p) - 1.0, u, 1e-12) << "dt " << dt << " step " << step;
+      ASSERT_NEAR(s.particles().v(0, p), v, 1e-11) << "dt " << dt << " step " << step;
+    }
+    const double energy = 0.5 * k * u * u + 0.5 * v * v, start = 0.5 * k * 0.01 + 0.5 * 0.09;
+    EXPECT_LT(energy, start) << "dt " << dt;
+  }
 }
 
 TEST(Newmark, SceneWithoutImplicitTermsRunsNoLinearSolve) {

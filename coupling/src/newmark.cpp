@@ -53,6 +53,9 @@ void Newmark::allocate(const System& s) {
 StepStats Newmark::step(System& s, double dt) {
   if (!m_allocated) allocate(s);
   const auto start = Clock::now();
+  m_implicit_elasticity = false;  // the setting may change between steps
+  for (const auto& f : s.m_forces)
+    m_implicit_elasticity = m_implicit_elasticity || (s.m_step_settings.implicit_elasticity && f->has_definite_differentials());
   StepStats stats;
   stats.substeps = 1;
   stats.dt = dt;
@@ -109,7 +112,9 @@ void Newmark::update_body_inertias(const System& s) {
 }
 
 // Step 1 (eq. 8): (M + dt/2 D + dt^2/4 K) v~^{n+1/2} = M v^n + dt/2 (F_el(x^n) + F_ext - K x^n),
-// implicit in all damping and in the binding springs, explicit in the other elastic forces.
+// implicit in all damping and in the binding springs, explicit in the other elastic forces unless
+// StepSettings::implicit_elasticity adds their definite differentials to K: then
+// F_el(x^n + dt/2 v~^{n+1/2}) ~ F_el(x^n) + dt/2 K+ v~^{n+1/2}, linearised once, as for the springs.
 void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   const double h = 0.5 * dt;
   auto t = Clock::now();
@@ -124,8 +129,8 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   stats.ms.forces += ms_since(t);
 
   t = Clock::now();
-  const bool linear_solve = m_has_damping || s.m_springs.size() > 0;
-  const SolveResult result = solve(s, h, h, linear_solve);
+  const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity;
+  const SolveResult result = solve(s, h, h, m_implicit_elasticity ? h : 0.0, linear_solve);
   stats.ms.cg += ms_since(t);
   stats.linear_solve = linear_solve;
   stats.cg_iterations_step1 += result.iterations;
@@ -197,7 +202,8 @@ void Newmark::process_collisions(System& s, double dt) {
 
 // Step 4: (M + dt/2 D) v^{n+1/2} = M v~^n + dt/2 (F_el(x^{n+1/2}) + F_ext - K x^{n+1/2}), with the
 // collision constraints of step 3 projected. x^{n+1/2} is what keeps the stiff binding springs
-// stable (section 3.3); BindingSpringStep4 selects the alternatives.
+// stable (section 3.3); BindingSpringStep4 selects the alternatives. Implicit elasticity adds
+// dt^2/4 K+(x^{n+1/2}) of the elastic forces to the operator.
 void Newmark::backward_euler_velocity(System& s, double dt, StepStats& stats) {
   const double h = 0.5 * dt;
   auto t = Clock::now();
@@ -234,8 +240,8 @@ void Newmark::backward_euler_velocity(System& s, double dt, StepStats& stats) {
 
   t = Clock::now();
   const double beta = mode == BindingSpringStep4::implicit_half_step ? h : 0.0;
-  const bool linear_solve = m_has_damping || s.m_springs.size() > 0;  // binding springs always damp
-  const SolveResult result = solve(s, h, beta, linear_solve);
+  const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity;
+  const SolveResult result = solve(s, h, beta, m_implicit_elasticity ? h : 0.0, linear_solve);
   stats.ms.cg += ms_since(t);
   stats.cg_iterations_step4 += result.iterations;
   stats.cg_residual = std::max(stats.cg_residual, result.residual);
@@ -355,14 +361,14 @@ void Newmark::build_rhs(const System& s, double h, const Vectors3& v_start, cons
 
 // S u = M u - h W^T (D + beta K) W u on the unknowns; rows without unknowns return zero. W is applied
 // by clamping bound rows from the trial velocities (hard bindings are eliminated, not projected).
-void Newmark::apply(System& s, double h, double beta, const GeneralizedVector& u, GeneralizedVector& out) {
+void Newmark::apply(System& s, double h, double beta, double beta_el, const GeneralizedVector& u, GeneralizedVector& out) {
   m_tmp_v = u.particles;
   s.m_hard.clamp_velocities(m_tmp_v, u.rigid);
   for (Index k = 0; k < s.m_soft.size(); ++k)
     if (s.m_soft.coupling[k] == SoftCoupling::synchronized) m_tmp_v.col(s.m_soft.particle[k]) = m_tmp_v.col(s.m_soft.target[k]);
   m_apply_f.setZero();
   m_apply_wrench.setZero();
-  for (const auto& f : s.m_forces) f->add_damping_forces(m_tmp_v, m_apply_f);
+  for (const auto& f : s.m_forces) f->add_implicit_products(m_tmp_v, f->has_definite_differentials() ? beta_el : 0.0, m_apply_f);
   s.m_springs.add_linear_forces(m_tmp_v, 1.0, beta, m_apply_f);
   gather_synchronized(s, m_apply_f);
   s.m_hard.distribute(m_apply_f, m_apply_wrench);
@@ -381,10 +387,10 @@ void Newmark::apply(System& s, double h, double beta, const GeneralizedVector& u
   project(out);
 }
 
-void Newmark::build_preconditioner(System& s, double h, double beta, bool jacobi) {
+void Newmark::build_preconditioner(System& s, double h, double beta, double beta_el, bool jacobi) {
   m_diag.setZero();
   if (jacobi) {
-    for (const auto& f : s.m_forces) f->add_damping_diagonal(m_diag);
+    for (const auto& f : s.m_forces) f->add_implicit_diagonal(f->has_definite_differentials() ? beta_el : 0.0, m_diag);
     m_diag *= h;
     s.m_springs.add_diagonal(h, h * beta, m_diag);
     for (Index k = 0; k < s.m_soft.size(); ++k)
@@ -444,11 +450,11 @@ void Newmark::project(GeneralizedVector& u) const {
 // Preconditioned conjugate gradients on the symmetric positive definite S = M + h W^T(D + beta K)W
 // (symmetric in the plain inner product; the paper's mass inner product form is the same iteration).
 // Constrained directions (kinematic rows and bodies, collision normals) keep their initial values.
-Newmark::SolveResult Newmark::solve(System& s, double h, double beta, bool linear_solve) {
+Newmark::SolveResult Newmark::solve(System& s, double h, double beta, double beta_el, bool linear_solve) {
   SolveResult result;
   const StepSettings& settings = s.m_step_settings;
-  build_preconditioner(s, h, beta, settings.jacobi_preconditioner && linear_solve);
-  apply(s, h, beta, m_y, m_q);
+  build_preconditioner(s, h, beta, beta_el, settings.jacobi_preconditioner && linear_solve);
+  apply(s, h, beta, beta_el, m_y, m_q);
   m_r_vec.particles = m_c.particles - m_q.particles;
   m_r_vec.rigid = m_c.rigid - m_q.rigid;
   project(m_r_vec);
@@ -470,7 +476,7 @@ Newmark::SolveResult Newmark::solve(System& s, double h, double beta, bool linea
       result.converged = false;
       break;
     }
-    apply(s, h, beta, m_p, m_q);
+    apply(s, h, beta, beta_el, m_p, m_q);
     const double pq = dot(m_p, m_q);
     if (!(pq > 0.0)) {
       if (!std::isfinite(pq)) fail("Newmark step ", m_step_count, ": conjugate gradients produced a non-finite value");

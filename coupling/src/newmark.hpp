@@ -40,10 +40,11 @@ class Newmark {
   Vec3 compute_forces(System& s, const Vectors3& x_springs, bool record_bound_forces = false);
   /// c = M v_start + h F; rigid rows (m v + h f, L + h tau).
   void build_rhs(const System& s, double h, const Vectors3& v_start, const Vectors3& body_v, const Vectors3& body_L);
-  /// Solves (M + h D + beta h K) y = c by preconditioned CG, y holding the initial guess.
-  SolveResult solve(System& s, double h, double beta, bool linear_solve);
-  void apply(System& s, double h, double beta, const GeneralizedVector& u, GeneralizedVector& out);
-  void build_preconditioner(System& s, double h, double beta, bool jacobi);
+  /// Solves (M - h D - h beta K_springs - h beta_el K+_elastic) y = c by preconditioned CG, y holding
+  /// the initial guess (K, D negative semi-definite).
+  SolveResult solve(System& s, double h, double beta, double beta_el, bool linear_solve);
+  void apply(System& s, double h, double beta, double beta_el, const GeneralizedVector& u, GeneralizedVector& out);
+  void build_preconditioner(System& s, double h, double beta, double beta_el, bool jacobi);
   void precondition(const GeneralizedVector& r, GeneralizedVector& z) const;
   void project(GeneralizedVector& u) const;
   /// Copies each synchronized soft particle's target state into it (section 3.1).
@@ -72,6 +73,7 @@ class Newmark {
   GeneralizedVector m_c, m_y, m_r_vec, m_z, m_p, m_q;
   std::vector<CollisionConstraint> m_constraints;
   bool m_has_damping = false;
+  bool m_implicit_elasticity = false;  // some elastic force enters the step-1 solve
 };
 
 }  // namespace sinew

@@ -370,7 +370,10 @@ StepStats System::step(double dt) {
 double System::stable_dt() {
   finalize();
   double dt = kInfinity;
-  for (const auto& f : m_forces) dt = std::min(dt, f->stable_dt(m_effective_mass));
+  for (const auto& f : m_forces) {
+    if (m_step_settings.implicit_elasticity && f->has_definite_differentials()) continue;  // no limit when implicit
+    dt = std::min(dt, f->stable_dt(m_effective_mass));
+  }
   return dt;
 }
 

@@ -4,8 +4,9 @@
 // alike. Forces on hard-bound rows reach the parents through W^T (Sifakis et al. 2007, eq. 1-3);
 // the integrator does that, a force never needs to know which rows are bound.
 //
-// Elastic forces are explicit in the Newmark step (section 3.3); their differentials serve tests,
-// stability estimates and later implicit solvers. Damping is linear in v (f = D(x) v, D symmetric
+// Elastic forces are explicit in the Newmark step (section 3.3), unless StepSettings::
+// implicit_elasticity asks for those that offer a definite differential to enter the first velocity
+// solve the way binding springs do (eq. 6-8). Damping is linear in v (f = D(x) v, D symmetric
 // negative semi-definite) and is implicit in both velocity solves.
 #pragma once
 
@@ -46,6 +47,23 @@ class Force {
   /// implicit system (a scalar per particle: a third of the trace of its 3x3 diagonal block).
   /// Used only by the Jacobi preconditioner.
   virtual void add_damping_diagonal(VectorXd& diag) const { (void)diag; }
+
+  /// True when the force offers a definite differential K+ (symmetric negative semi-definite; the
+  /// exact differential wherever that is definite) and so may be treated implicitly.
+  virtual bool has_definite_differentials() const { return false; }
+
+  /// f += D v + b K+ v at the cached state: what the implicit solve multiplies by, in one pass over
+  /// the elements. Forces without a definite differential add D v only (b must then be 0).
+  virtual void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
+    (void)b;
+    add_damping_forces(v, f);
+  }
+
+  /// diag(i) += -(D_ii + b K+_ii), a third of the traces of the diagonal blocks (Jacobi).
+  virtual void add_implicit_diagonal(double b, VectorXd& diag) const {
+    (void)b;
+    add_damping_diagonal(diag);
+  }
 
   /// True when add_damping_forces adds anything; a scene whose forces all return false and that
   /// has no binding springs runs no linear solve at all.

@@ -47,6 +47,12 @@ struct StepSettings {
   double cg_tolerance = 1e-9;       ///< largest preconditioned residual component [m/s]
   int cg_max_iterations = 1000;
   bool jacobi_preconditioner = true;
+  /// Elastic forces with a definite differential (edge springs) enter both velocity solves
+  /// implicitly, linearised once: (M - dt/2 D - dt^2/4 K+) v = M v_start + dt/2 F(x), at x^n in
+  /// step 1 and x^{n+1/2} in step 4; they then no longer limit advance()'s substep. This damps their
+  /// stiff modes and is first-order accurate in them (kept explicit in step 4 the linearised scheme
+  /// is unstable for stiff springs turning); off by default, as in the paper.
+  bool implicit_elasticity = false;
   BindingSpringStep4 binding_springs_in_step4 = BindingSpringStep4::explicit_half_step;
   double cfl = 0.9;                 ///< fraction of the elastic stable step used by advance()
   int max_substeps = 100000;
@@ -139,7 +145,7 @@ class System {
   StepStats step(double dt);
   /// Advances by frame_dt in equal substeps no larger than cfl * stable_dt().
   StepStats advance(double frame_dt);
-  /// The explicit elastic forces' stable step (binding springs impose none).
+  /// The explicit elastic forces' stable step (binding springs and implicitly treated forces impose none).
   double stable_dt();
   double time() const { return m_time; }
 

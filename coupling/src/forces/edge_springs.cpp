@@ -5,8 +5,9 @@
 //   f_i   = k (l - l0) d,                      f_j = -f_i
 //   df_i  = k [d d^T + (1 - l0/l)(I - d d^T)] (dx_j - dx_i),   df_j = -df_i
 // The transverse term (1 - l0/l)(I - d d^T) is the stiffness of rotating a pre-stretched spring;
-// it is negative under compression, so the differential is exact but indefinite there (callers that
-// need a definite matrix must clamp it themselves).
+// it is negative under compression, so the differential is exact but indefinite there. The definite
+// differential K+ used by implicit solves clamps it at zero (a compressed spring's transverse
+// stiffness is dropped), which is the exact differential for every stretched spring.
 //
 // Damping acts along the current direction only, so rigid rotation is not damped:
 //   f_i = -b d d^T (v_i - v_j),  f_j = -f_i,
@@ -118,6 +119,35 @@ void EdgeSprings::add_damping_forces(const Vectors3& v, Vectors3& f) const {
     const Vec3 f_i = (-b * d.dot(v.col(ij[0]) - v.col(ij[1]))) * d;
     f.col(ij[0]) += f_i;
     f.col(ij[1]) -= f_i;
+  }
+}
+
+// f_i += [b_d d d^T + b k (d d^T + t+ (I - d d^T))] (v_j - v_i), f_j -= the same, t+ = max(0, 1 - l0/l).
+void EdgeSprings::add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
+  const double bk = b * m_settings.stiffness;
+  const double along_scale = m_settings.damping + bk;
+  if (along_scale == 0.0) return;
+  for (std::size_t e = 0; e < m_edges.size(); ++e) {
+    const auto ei = static_cast<Index>(e);
+    const Edge& ij = m_edges[e];
+    const Vec3 d = m_direction.col(ei);
+    const Vec3 dv = v.col(ij[1]) - v.col(ij[0]);
+    const double along = d.dot(dv);
+    const double transverse = bk * std::max(0.0, 1.0 - m_rest_length[ei] / m_length[ei]);
+    const Vec3 f_i = (along_scale * along) * d + transverse * (dv - along * d);
+    f.col(ij[0]) += f_i;
+    f.col(ij[1]) -= f_i;
+  }
+}
+
+void EdgeSprings::add_implicit_diagonal(double b, VectorXd& diag) const {
+  const double bk = b * m_settings.stiffness;
+  for (std::size_t e = 0; e < m_edges.size(); ++e) {
+    const auto ei = static_cast<Index>(e);
+    const double transverse = std::max(0.0, 1.0 - m_rest_length[ei] / m_length[ei]);
+    const double d = (m_settings.damping + bk * (1.0 + 2.0 * transverse)) / 3.0;
+    diag[m_edges[e][0]] += d;
+    diag[m_edges[e][1]] += d;
   }
 }
 

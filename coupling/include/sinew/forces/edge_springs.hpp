@@ -31,6 +31,9 @@ class EdgeSprings final : public Force {
   void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
   void add_damping_diagonal(VectorXd& diag) const override;
   bool has_damping() const override { return m_settings.damping > 0.0; }
+  bool has_definite_differentials() const override { return true; }
+  void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
+  void add_implicit_diagonal(double b, VectorXd& diag) const override;
   double stable_dt(const VectorXd& m_eff) const override;
 
   const std::vector<Edge>& edges() const { return m_edges; }
