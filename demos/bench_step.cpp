@@ -4,7 +4,7 @@
 // iterations, the substep the elastic forces allow, the time per simulated second, and the error of
 // the bottom edge against a run at a quarter of the substep (so speed stands beside accuracy).
 //
-//   sinew-bench-step [--runs N] [--steps N] [--sizes 40,100]
+//   sinew-bench-step [--runs N] [--steps N] [--sizes 40,100] [--threads N]
 #include "cloth.hpp"
 
 #include <algorithm>
@@ -30,10 +30,11 @@ double median(std::vector<double> v) {
 struct Scene {
   System system;
   scenes::HangingCloth handles;
-  explicit Scene(int n) {
+  explicit Scene(int n, int threads) {
     scenes::HangingClothSettings settings;
     settings.cloth.nx = settings.cloth.ny = n;
     handles = scenes::add_hanging_cloth(system, settings);
+    system.step_settings().threads = threads;
     system.finalize();
     if (const char* tol = std::getenv("SINEW_CG_TOL")) system.step_settings().cg_tolerance = std::atof(tol);
   }
@@ -64,22 +65,23 @@ std::string cpu_model() {
 }  // namespace
 
 int main(int argc, char** argv) {
-  int runs = 5, steps = 48;
+  int runs = 5, steps = 48, threads = 1;
   std::vector<int> sizes{40, 100};
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--runs") && i + 1 < argc) runs = std::atoi(argv[++i]);
     else if (!std::strcmp(argv[i], "--steps") && i + 1 < argc) steps = std::atoi(argv[++i]);
+    else if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) threads = std::atoi(argv[++i]);
     else if (!std::strcmp(argv[i], "--sizes") && i + 1 < argc) {
       sizes.clear();
       std::stringstream list(argv[++i]);
       std::string item;
       while (std::getline(list, item, ',')) sizes.push_back(std::atoi(item.c_str()));
     } else {
-      std::fprintf(stderr, "usage: sinew-bench-step [--runs N] [--steps N] [--sizes 40,100]\n");
+      std::fprintf(stderr, "usage: sinew-bench-step [--runs N] [--steps N] [--sizes 40,100] [--threads N]\n");
       return 2;
     }
   }
-  std::printf("machine: %s, %u hardware threads; sinew threads: 1\n", cpu_model().c_str(), std::thread::hardware_concurrency());
+  std::printf("machine: %s, %u hardware threads; sinew threads: %d\n", cpu_model().c_str(), std::thread::hardware_concurrency(), threads);
   std::printf("scene: cloth n x n, 2 m x 2 m, 0.5 kg, springs k=200 N/m b=0.05, bending 1e-4, binding springs 1e5 N/m to a 0.5 kg rod\n");
   std::printf("%5s %7s %9s %10s %9s %8s %8s %8s %8s %8s %9s %12s\n", "n", "nodes", "dt [ms]", "ms/step", "step1", "step2",
               "step3", "step4", "step5", "cg it", "ms/sim-s", "edge err [m]");
@@ -88,7 +90,7 @@ int main(int argc, char** argv) {
     double dt = 0.0;
     Index nodes = 0;
     for (int run = 0; run < runs; ++run) {
-      Scene scene(n);
+      Scene scene(n, threads);
       dt = scene.system.step_settings().cfl * scene.system.stable_dt();
       nodes = scene.system.particles().size();
       for (int i = 0; i < 3; ++i) scene.system.step(dt);  // warm-up: first-call allocation
@@ -112,7 +114,7 @@ int main(int argc, char** argv) {
     // quarter of it (second order: the reference's own error is about 1/16 of the reported one).
     const double horizon = 0.1;
     auto run_to = [&](double step) {
-      Scene scene(n);
+      Scene scene(n, threads);
       const int count = static_cast<int>(std::ceil(horizon / step - 1e-9));
       for (int i = 0; i < count; ++i) scene.system.step(horizon / count);
       return scene.bottom_edge();

@@ -1,5 +1,7 @@
 #include "newmark.hpp"
 
+#include "sinew/parallel.hpp"
+
 #include <algorithm>
 #include <chrono>
 
@@ -12,8 +14,44 @@ double ms_since(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
 
+// CG's vector work, parallel over particles (sinew/parallel.hpp: the same bits for any thread count).
 double dot(const GeneralizedVector& a, const GeneralizedVector& b) {
-  return a.particles.cwiseProduct(b.particles).sum() + a.rigid.cwiseProduct(b.rigid).sum();
+  const double particles = parallel::sum(a.particles.cols(), [&](Index i) { return a.particles.col(i).dot(b.particles.col(i)); });
+  return particles + a.rigid.cwiseProduct(b.rigid).sum();
+}
+
+/// y += alpha x.
+void axpy(double alpha, const GeneralizedVector& x, GeneralizedVector& y) {
+  parallel::for_ranges(x.particles.cols(), [&](Index i0, Index i1) {
+    y.particles.middleCols(i0, i1 - i0) += alpha * x.particles.middleCols(i0, i1 - i0);
+  });
+  y.rigid += alpha * x.rigid;
+}
+
+/// p = z + beta p.
+void update_direction(const GeneralizedVector& z, double beta, GeneralizedVector& p) {
+  parallel::for_ranges(z.particles.cols(), [&](Index i0, Index i1) {
+    p.particles.middleCols(i0, i1 - i0) = z.particles.middleCols(i0, i1 - i0) + beta * p.particles.middleCols(i0, i1 - i0);
+  });
+  p.rigid = z.rigid + beta * p.rigid;
+}
+
+/// The largest |component| (order-independent, so any partition gives the same value).
+double max_abs(const GeneralizedVector& v) {
+  const Index n = v.particles.cols();
+  const int parts = n >= parallel::kMinParallelItems ? std::max(1, thread_count()) : 1;
+  thread_local std::vector<double> part;
+  part.assign(static_cast<std::size_t>(parts), 0.0);
+  double* out = part.data();
+  parallel::for_ranges_when(parts > 1, parts, [&](Index p0, Index p1) {
+    for (Index p = p0; p < p1; ++p) {
+      const Index i0 = n * p / parts, i1 = n * (p + 1) / parts;
+      out[p] = i1 > i0 ? v.particles.middleCols(i0, i1 - i0).cwiseAbs().maxCoeff() : 0.0;
+    }
+  });
+  double m = v.rigid.size() > 0 ? v.rigid.cwiseAbs().maxCoeff() : 0.0;
+  for (double x : part) m = std::max(m, x);
+  return m;
 }
 
 }  // namespace
@@ -362,19 +400,23 @@ void Newmark::build_rhs(const System& s, double h, const Vectors3& v_start, cons
 // S u = M u - h W^T (D + beta K) W u on the unknowns; rows without unknowns return zero. W is applied
 // by clamping bound rows from the trial velocities (hard bindings are eliminated, not projected).
 void Newmark::apply(System& s, double h, double beta, double beta_el, const GeneralizedVector& u, GeneralizedVector& out) {
-  m_tmp_v = u.particles;
+  parallel::for_ranges(m_n, [&](Index i0, Index i1) {
+    m_tmp_v.middleCols(i0, i1 - i0) = u.particles.middleCols(i0, i1 - i0);
+    m_apply_f.middleCols(i0, i1 - i0).setZero();
+  });
   s.m_hard.clamp_velocities(m_tmp_v, u.rigid);
   for (Index k = 0; k < s.m_soft.size(); ++k)
     if (s.m_soft.coupling[k] == SoftCoupling::synchronized) m_tmp_v.col(s.m_soft.particle[k]) = m_tmp_v.col(s.m_soft.target[k]);
-  m_apply_f.setZero();
   m_apply_wrench.setZero();
   for (const auto& f : s.m_forces) f->add_implicit_products(m_tmp_v, f->has_definite_differentials() ? beta_el : 0.0, m_apply_f);
   s.m_springs.add_linear_forces(m_tmp_v, 1.0, beta, m_apply_f);
   gather_synchronized(s, m_apply_f);
   s.m_hard.distribute(m_apply_f, m_apply_wrench);
 
-  for (Index i = 0; i < m_n; ++i)
-    out.particles.col(i) = m_dof_mass[i] * u.particles.col(i) - (h * m_dynamic_mask[i]) * m_apply_f.col(i);
+  parallel::for_ranges(m_n, [&](Index i0, Index i1) {
+    for (Index i = i0; i < i1; ++i)
+      out.particles.col(i) = m_dof_mass[i] * u.particles.col(i) - (h * m_dynamic_mask[i]) * m_apply_f.col(i);
+  });
   const auto& bodies = s.m_bodies;
   for (Index b = 0; b < m_r; ++b) {
     if (!m_dynamic_body[b]) {
@@ -431,14 +473,18 @@ void Newmark::build_preconditioner(System& s, double h, double beta, double beta
 }
 
 void Newmark::precondition(const GeneralizedVector& r, GeneralizedVector& z) const {
-  for (Index i = 0; i < m_n; ++i) z.particles.col(i) = m_inverse_diag[i] * r.particles.col(i);
+  parallel::for_ranges(m_n, [&](Index i0, Index i1) {
+    for (Index i = i0; i < i1; ++i) z.particles.col(i) = m_inverse_diag[i] * r.particles.col(i);
+  });
   for (Index b = 0; b < m_r; ++b) z.rigid.col(b) = m_body_preconditioner[b] * r.rigid.col(b);
   project(z);
 }
 
 void Newmark::project(GeneralizedVector& u) const {
-  for (Index i = 0; i < m_n; ++i)
-    if (m_dynamic_mask[i] == 0.0) u.particles.col(i).setZero();
+  parallel::for_ranges(m_n, [&](Index i0, Index i1) {
+    for (Index i = i0; i < i1; ++i)
+      if (m_dynamic_mask[i] == 0.0) u.particles.col(i).setZero();
+  });
   for (Index b = 0; b < m_r; ++b)
     if (!m_dynamic_body[b]) u.rigid.col(b).setZero();
   for (const CollisionConstraint& c : m_constraints) {
@@ -465,7 +511,7 @@ Newmark::SolveResult Newmark::solve(System& s, double h, double beta, double bet
     m_y.rigid += m_z.rigid;
     return result;
   }
-  auto residual = [&] { return std::max(m_z.particles.cwiseAbs().maxCoeff(), m_r > 0 ? m_z.rigid.cwiseAbs().maxCoeff() : 0.0); };
+  auto residual = [&] { return max_abs(m_z); };
   if (m_n == 0 && m_r == 0) return result;
   m_p.particles = m_z.particles;
   m_p.rigid = m_z.rigid;
@@ -483,16 +529,13 @@ Newmark::SolveResult Newmark::solve(System& s, double h, double beta, double bet
       break;  // the remaining residual lies in S's null space: nothing more to gain
     }
     const double alpha = rz / pq;
-    m_y.particles += alpha * m_p.particles;
-    m_y.rigid += alpha * m_p.rigid;
-    m_r_vec.particles -= alpha * m_q.particles;
-    m_r_vec.rigid -= alpha * m_q.rigid;
+    axpy(alpha, m_p, m_y);
+    axpy(-alpha, m_q, m_r_vec);
     precondition(m_r_vec, m_z);
     const double rz_new = dot(m_r_vec, m_z);
     const double beta_cg = rz_new / rz;
     rz = rz_new;
-    m_p.particles = m_z.particles + beta_cg * m_p.particles;
-    m_p.rigid = m_z.rigid + beta_cg * m_p.rigid;
+    update_direction(m_z, beta_cg, m_p);
     ++result.iterations;
     result.residual = residual();
   }

@@ -1,5 +1,7 @@
 #include "sinew/system.hpp"
 
+#include "sinew/parallel.hpp"
+
 #include "newmark.hpp"
 
 #include <Eigen/Eigenvalues>
@@ -362,6 +364,7 @@ void System::clamp_bound_rows() {
 StepStats System::step(double dt) {
   if (!(std::isfinite(dt) && dt > 0.0)) fail("step: dt ", dt, " must be positive and finite");
   finalize();
+  set_thread_count(m_step_settings.threads);
   StepStats stats = m_newmark->step(*this, dt);
   m_time += dt;
   return stats;

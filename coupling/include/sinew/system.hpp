@@ -53,6 +53,9 @@ struct StepSettings {
   /// stiff modes and is first-order accurate in them (kept explicit in step 4 the linearised scheme
   /// is unstable for stiff springs turning); off by default, as in the paper.
   bool implicit_elasticity = false;
+  /// Threads for the step's loops (0: every hardware thread). Results are bit-identical for any
+  /// count (sinew/parallel.hpp); small scenes stay on one thread whatever this says.
+  int threads = 1;
   BindingSpringStep4 binding_springs_in_step4 = BindingSpringStep4::explicit_half_step;
   double cfl = 0.9;                 ///< fraction of the elastic stable step used by advance()
   int max_substeps = 100000;

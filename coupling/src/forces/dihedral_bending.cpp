@@ -196,6 +196,7 @@ DihedralBending::DihedralBending(std::vector<Hinge> hinges, const Vectors3& rest
   detail::Incidence incidence = detail::Incidence::build(m_hinges, detail::index_span(m_hinges));
   m_incidence_offsets = std::move(incidence.offsets);
   m_incidence = std::move(incidence.elements);
+  m_scatter = ScatterGather<4>(m_hinges, detail::index_span(m_hinges));
 }
 
 void DihedralBending::validate(Index particle_count) const {
@@ -235,15 +236,18 @@ double DihedralBending::potential_energy(const Vectors3& x) const {
 }
 
 void DihedralBending::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
-  for (std::size_t h = 0; h < m_hinges.size(); ++h) {
-    Vec<double> p[4];
-    gather_hinge(x, m_hinges[h], p);
-    const HingeKinematics<double> k = hinge_kinematics(p);
-    const double scale = -2.0 * m_settings.stiffness * m_weight[h] * wrapped_difference(k.theta, m_rest_angle[h]);
-    for (std::size_t a = 0; a < 4; ++a) {
-      f.col(m_hinges[h][a]) += scale * Vec3(k.grad[a].x, k.grad[a].y, k.grad[a].z);
+  // Parallel over hinges into each hinge's own slots, then gathered per node (deterministic).
+  parallel::for_ranges(static_cast<Index>(m_hinges.size()), [&](Index h0, Index h1) {
+    for (Index hi = h0; hi < h1; ++hi) {
+      const auto h = static_cast<std::size_t>(hi);
+      Vec<double> p[4];
+      gather_hinge(x, m_hinges[h], p);
+      const HingeKinematics<double> k = hinge_kinematics(p);
+      const double scale = -2.0 * m_settings.stiffness * m_weight[h] * wrapped_difference(k.theta, m_rest_angle[h]);
+      for (std::size_t a = 0; a < 4; ++a) m_scatter.slot(hi, a) = scale * Vec3(k.grad[a].x, k.grad[a].y, k.grad[a].z);
     }
-  }
+  });
+  m_scatter.gather_add(f);
 }
 
 void DihedralBending::add_elastic_differentials(const Vectors3& dx, Vectors3& df) const {

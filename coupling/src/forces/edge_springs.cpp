@@ -57,6 +57,7 @@ EdgeSprings::EdgeSprings(std::vector<Edge> edges, const Vectors3& rest_x, const 
     m_stiffness_sum[v[1]] += m_settings.stiffness;
   }
   m_index_span = detail::index_span(m_edges);
+  m_scatter = ScatterGather<2>(m_edges, m_index_span);
 }
 
 void EdgeSprings::validate(Index particle_count) const {
@@ -64,13 +65,29 @@ void EdgeSprings::validate(Index particle_count) const {
 }
 
 void EdgeSprings::update_position_state(const Vectors3& x) {
-  for (std::size_t e = 0; e < m_edges.size(); ++e) {
-    const auto ei = static_cast<Index>(e);
-    const Vec3 diff = x.col(m_edges[e][1]) - x.col(m_edges[e][0]);
-    const double l = diff.norm();
-    m_length[ei] = l;
-    m_direction.col(ei) = diff / l;
-  }
+  parallel::for_ranges(static_cast<Index>(m_edges.size()), [&](Index e0, Index e1) {
+    for (Index e = e0; e < e1; ++e) {
+      const Edge& v = m_edges[static_cast<std::size_t>(e)];
+      const Vec3 diff = x.col(v[1]) - x.col(v[0]);
+      const double l = diff.norm();
+      m_length[e] = l;
+      m_direction.col(e) = diff / l;
+    }
+  });
+}
+
+// Every per-edge loop below computes the force on the edge's first end, f_i (the second end gets
+// -f_i), in parallel over edges into the edge's own slots; each node then gathers its slots.
+template <typename EdgeForce>
+void EdgeSprings::scatter_gather(Vectors3& f, EdgeForce&& edge_force) const {
+  parallel::for_ranges(static_cast<Index>(m_edges.size()), [&](Index e0, Index e1) {
+    for (Index e = e0; e < e1; ++e) {
+      const Vec3 f_i = edge_force(e, m_edges[static_cast<std::size_t>(e)]);
+      m_scatter.slot(e, 0) = f_i;
+      m_scatter.slot(e, 1) = -f_i;
+    }
+  });
+  m_scatter.gather_add(f);
 }
 
 double EdgeSprings::potential_energy(const Vectors3& x) const {
@@ -84,14 +101,11 @@ double EdgeSprings::potential_energy(const Vectors3& x) const {
 
 void EdgeSprings::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
   const double k = m_settings.stiffness;
-  for (std::size_t e = 0; e < m_edges.size(); ++e) {
-    const Edge& v = m_edges[e];
+  scatter_gather(f, [&](Index e, const Edge& v) -> Vec3 {
     const Vec3 diff = x.col(v[1]) - x.col(v[0]);
     const double l = diff.norm();
-    const Vec3 f_i = (k * (l - m_rest_length[static_cast<Index>(e)]) / l) * diff;
-    f.col(v[0]) += f_i;
-    f.col(v[1]) -= f_i;
-  }
+    return (k * (l - m_rest_length[e]) / l) * diff;
+  });
 }
 
 void EdgeSprings::add_elastic_differentials(const Vectors3& dx, Vectors3& df) const {
@@ -113,13 +127,10 @@ void EdgeSprings::add_elastic_differentials(const Vectors3& dx, Vectors3& df) co
 void EdgeSprings::add_damping_forces(const Vectors3& v, Vectors3& f) const {
   const double b = m_settings.damping;
   if (b == 0.0) return;
-  for (std::size_t e = 0; e < m_edges.size(); ++e) {
-    const Edge& ij = m_edges[e];
-    const Vec3 d = m_direction.col(static_cast<Index>(e));
-    const Vec3 f_i = (-b * d.dot(v.col(ij[0]) - v.col(ij[1]))) * d;
-    f.col(ij[0]) += f_i;
-    f.col(ij[1]) -= f_i;
-  }
+  scatter_gather(f, [&](Index e, const Edge& ij) -> Vec3 {
+    const Vec3 d = m_direction.col(e);
+    return (-b * d.dot(v.col(ij[0]) - v.col(ij[1]))) * d;
+  });
 }
 
 // f_i += [b_d d d^T + b k (d d^T + t+ (I - d d^T))] (v_j - v_i), f_j -= the same, t+ = max(0, 1 - l0/l).
@@ -127,17 +138,20 @@ void EdgeSprings::add_implicit_products(const Vectors3& v, double b, Vectors3& f
   const double bk = b * m_settings.stiffness;
   const double along_scale = m_settings.damping + bk;
   if (along_scale == 0.0) return;
-  for (std::size_t e = 0; e < m_edges.size(); ++e) {
-    const auto ei = static_cast<Index>(e);
-    const Edge& ij = m_edges[e];
-    const Vec3 d = m_direction.col(ei);
+  if (bk == 0.0) {
+    scatter_gather(f, [&](Index e, const Edge& ij) -> Vec3 {
+      const Vec3 d = m_direction.col(e);
+      return (along_scale * d.dot(v.col(ij[1]) - v.col(ij[0]))) * d;
+    });
+    return;
+  }
+  scatter_gather(f, [&](Index e, const Edge& ij) -> Vec3 {
+    const Vec3 d = m_direction.col(e);
     const Vec3 dv = v.col(ij[1]) - v.col(ij[0]);
     const double along = d.dot(dv);
-    const double transverse = bk * std::max(0.0, 1.0 - m_rest_length[ei] / m_length[ei]);
-    const Vec3 f_i = (along_scale * along) * d + transverse * (dv - along * d);
-    f.col(ij[0]) += f_i;
-    f.col(ij[1]) -= f_i;
-  }
+    const double transverse = bk * std::max(0.0, 1.0 - m_rest_length[e] / m_length[e]);
+    return (along_scale * along) * d + transverse * (dv - along * d);
+  });
 }
 
 void EdgeSprings::add_implicit_diagonal(double b, VectorXd& diag) const {

@@ -2,6 +2,7 @@
 #pragma once
 
 #include "sinew/force.hpp"
+#include "sinew/parallel.hpp"
 
 #include <array>
 #include <vector>
@@ -66,6 +67,7 @@ class DihedralBending final : public Force {
   std::vector<Index> m_incidence;
   // Position state: hinge vertex positions (for the differential) and d theta / dx (for damping).
   std::vector<Eigen::Matrix<double, 3, 4>> m_x;
+  mutable ScatterGather<4> m_scatter;  // per-hinge forces on its four nodes, gathered per node
   std::vector<Eigen::Matrix<double, 3, 4>> m_grad;
 };
 

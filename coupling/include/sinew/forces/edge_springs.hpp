@@ -2,6 +2,7 @@
 #pragma once
 
 #include "sinew/force.hpp"
+#include "sinew/parallel.hpp"
 
 #include <array>
 #include <vector>
@@ -41,6 +42,9 @@ class EdgeSprings final : public Force {
   const EdgeSpringsSettings& settings() const { return m_settings; }
 
  private:
+  template <typename EdgeForce>
+  void scatter_gather(Vectors3& f, EdgeForce&& edge_force) const;
+
   std::vector<Edge> m_edges;
   EdgeSpringsSettings m_settings;
   VectorXd m_rest_length;      ///< l0 per edge
@@ -49,6 +53,7 @@ class EdgeSprings final : public Force {
   // Position state (update_position_state): unit direction x_j - x_i and length per edge.
   Vectors3 m_direction;
   VectorXd m_length;
+  mutable ScatterGather<2> m_scatter;  // per-edge end forces, gathered per node (deterministic threads)
 };
 
 }  // namespace sinew

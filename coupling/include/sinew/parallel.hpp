@@ -1,0 +1,114 @@
+// Threads for sinew's step, deterministic by construction: 1 and N threads give bit-identical
+// results. Loops are statically partitioned (OpenMP), no thread ever adds into memory another
+// thread writes, and reductions combine fixed blocks of terms in a fixed order, so neither the
+// partition nor the thread count changes a single rounding.
+#pragma once
+
+#include "sinew/types.hpp"
+
+#include <algorithm>
+#include <array>
+#include <vector>
+
+namespace sinew {
+
+/// Threads sinew's loops use (1 by default; 0 means every hardware thread). Process-wide, set by
+/// System::step from StepSettings::threads before it runs.
+void set_thread_count(int threads);
+int thread_count();
+
+namespace parallel {
+
+/// Loops shorter than this run on the calling thread: a parallel region costs microseconds.
+inline constexpr Index kMinParallelItems = 2048;
+/// Reductions add terms in blocks of this many, then the block sums in block order.
+inline constexpr Index kReductionBlock = 1024;
+
+/// Runs body(begin, end) over [0, n) split into contiguous static ranges, one per thread when
+/// `parallel`, else once over all of it.
+template <typename Body>
+void for_ranges_when(bool parallel, Index n, Body&& body) {
+  const int threads = parallel ? thread_count() : 1;
+  if (threads <= 1) {
+    body(Index(0), n);
+    return;
+  }
+#pragma omp parallel for schedule(static) num_threads(threads)
+  for (int t = 0; t < threads; ++t) body(n * t / threads, n * (t + 1) / threads);
+}
+
+/// for_ranges_when for loops of n items, parallel from kMinParallelItems on.
+template <typename Body>
+void for_ranges(Index n, Body&& body) {
+  for_ranges_when(n >= kMinParallelItems, n, body);
+}
+
+/// sum over i in [0, n) of term(i), in blocks of kReductionBlock whose sums are added in order:
+/// the same bits for every thread count.
+template <typename Term>
+double sum(Index n, Term&& term) {
+  const Index blocks = (n + kReductionBlock - 1) / kReductionBlock;
+  thread_local std::vector<double> partial;
+  partial.assign(static_cast<std::size_t>(blocks), 0.0);
+  double* out = partial.data();
+  for_ranges_when(n >= kMinParallelItems, blocks, [&](Index b0, Index b1) {
+    for (Index b = b0; b < b1; ++b) {
+      double s = 0.0;
+      const Index end = std::min(n, (b + 1) * kReductionBlock);
+      for (Index i = b * kReductionBlock; i < end; ++i) s += term(i);
+      out[b] = s;
+    }
+  });
+  double total = 0.0;
+  for (Index b = 0; b < blocks; ++b) total += out[b];
+  return total;
+}
+
+}  // namespace parallel
+
+/// Element forces add per-element contributions into nodes. To do that in parallel and
+/// deterministically, each element writes its K node contributions into its own slots, and each
+/// node then gathers its slots in a fixed order (the order of elements in the force).
+template <std::size_t K>
+class ScatterGather {
+ public:
+  ScatterGather() = default;
+  /// elements: node indices per element; nodes: one past the largest node index.
+  ScatterGather(const std::vector<std::array<Index, K>>& elements, Index nodes) {
+    m_offset.assign(static_cast<std::size_t>(nodes) + 1, 0);
+    for (const auto& e : elements)
+      for (Index v : e) ++m_offset[static_cast<std::size_t>(v) + 1];
+    for (std::size_t i = 1; i < m_offset.size(); ++i) m_offset[i] += m_offset[i - 1];
+    m_slot.resize(static_cast<std::size_t>(m_offset.back()));
+    std::vector<Index> fill(m_offset.begin(), m_offset.end() - 1);
+    for (std::size_t e = 0; e < elements.size(); ++e)
+      for (std::size_t a = 0; a < K; ++a)
+        m_slot[static_cast<std::size_t>(fill[static_cast<std::size_t>(elements[e][a])]++)] = static_cast<Index>(K * e + a);
+    m_values.setZero(3, static_cast<Index>(K * elements.size()));
+    m_nodes = nodes;
+  }
+  /// The slot of element e's a-th node: write its contribution here.
+  auto slot(Index e, std::size_t a) { return m_values.col(static_cast<Index>(K) * e + static_cast<Index>(a)); }
+  Vectors3& values() { return m_values; }
+  Index elements() const { return m_values.cols() / static_cast<Index>(K); }
+  /// f.col(i) += the sum of node i's slots, in element order; parallel over nodes.
+  void gather_add(Vectors3& f) const {
+    parallel::for_ranges(m_nodes, [&](Index i0, Index i1) {
+      for (Index i = i0; i < i1; ++i) {
+        const Index begin = m_offset[static_cast<std::size_t>(i)], end = m_offset[static_cast<std::size_t>(i) + 1];
+        if (begin == end) continue;
+        Vec3 sum = Vec3::Zero();
+        for (Index s = begin; s < end; ++s) sum += m_values.col(m_slot[static_cast<std::size_t>(s)]);
+        f.col(i) += sum;
+      }
+    });
+  }
+
+ private:
+  std::vector<Index> m_offset;  // CSR over nodes
+  std::vector<Index> m_slot;    // slot column per entry
+  Vectors3 m_values;
+  Index m_nodes = 0;
+};
+
+}  // namespace sinew
