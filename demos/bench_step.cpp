@@ -6,6 +6,7 @@
 //
 //   sinew-bench-step [--runs N] [--steps N] [--sizes 40,100] [--threads N]
 #include "cloth.hpp"
+#include "machine.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -20,12 +21,8 @@
 namespace {
 
 using namespace sinew;
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
+using bench::cpu_model;
+using bench::median;
 
 struct Scene {
   System system;
@@ -45,22 +42,6 @@ struct Scene {
     return out;
   }
 };
-
-std::string cpu_model() {
-  FILE* f = std::fopen("/proc/cpuinfo", "r");
-  if (!f) return "unknown";
-  char line[512];
-  std::string model = "unknown";
-  while (std::fgets(line, sizeof line, f))
-    if (!std::strncmp(line, "model name", 10)) {
-      const char* colon = std::strchr(line, ':');
-      model = colon ? colon + 2 : line;
-      if (!model.empty() && model.back() == '\n') model.pop_back();
-      break;
-    }
-  std::fclose(f);
-  return model;
-}
 
 }  // namespace
 

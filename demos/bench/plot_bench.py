@@ -1,0 +1,54 @@
+#!/usr/bin/python3
+"""Draws sinew-bench's work-precision plot: wall time per simulated second against the error at the
+end of the run, each system against its own converged reference (reads DIR/work_precision.csv,
+writes DIR/work_precision.png). Usage: plot_bench.py DIR"""
+import csv
+import math
+import sys
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402  (after the backend is chosen)
+
+STYLE = {
+    "sinew": ("tab:red", "o"),
+    "sinew-implicit": ("tab:orange", "s"),
+    "bullet-classic": ("tab:blue", "^"),
+    "bullet-deformable": ("tab:green", "v"),
+}
+
+
+def main(folder):
+    rows = list(csv.DictReader(open(f"{folder}/work_precision.csv")))
+    series = {}
+    for r in rows:
+        ms, err, err_max = float(r["ms_per_sim_s"]), float(r["rms_t2"]), float(r["max_t2"])
+        if r["survived"] != "1" or not all(map(math.isfinite, (ms, err, err_max))) or err <= 0:
+            continue
+        series.setdefault((r["system"], int(r["n"])), []).append((err, err_max, ms, r["ticks"]))
+    sizes = sorted({n for _, n in series})
+    dashes = ["-", "--", ":", "-."]
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5), sharey=True)
+    for ax, column, title in ((axes[0], 0, "RMS node error at the end"), (axes[1], 1, "largest node error at the end")):
+        for (system, n), points in sorted(series.items()):
+            points.sort(key=lambda p: p[column])
+            color, marker = STYLE.get(system, ("black", "x"))
+            ax.plot([p[column] for p in points], [p[2] for p in points], marker=marker, color=color,
+                    linestyle=dashes[sizes.index(n) % len(dashes)], label=f"{system} {n}x{n}")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel(f"{title} vs own converged reference [m]")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].set_ylabel("wall time per simulated second [ms]")
+    axes[1].legend(fontsize=8, loc="best")
+    fig.suptitle("Benchmark curtain: speed against error (lower left is better)")
+    fig.tight_layout()
+    fig.savefig(f"{folder}/work_precision.png", dpi=110)
+    print(f"plot: {folder}/work_precision.png")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 2:
+        sys.exit(__doc__)
+    main(sys.argv[1])

@@ -1,0 +1,152 @@
+#include "sinew_curtain.hpp"
+
+#include "sinew/builders.hpp"
+#include "sinew/bullet/coupling.hpp"
+
+#include <btBulletDynamicsCommon.h>
+
+#include <cmath>
+#include <sstream>
+
+namespace sinew::bench {
+
+namespace {
+
+constexpr double kFarAway = 1000.0;  // [m]: the healthy() bound
+
+class SinewCurtain final : public SinewCurtainRun {
+ public:
+  SinewCurtain(const CurtainSpec& spec, const SinewSettings& settings) : m_spec(spec), m_settings(settings), m_pivots(bound_pivots(spec)) {
+    if (!(std::isfinite(settings.cg_tolerance) && settings.cg_tolerance > 0))
+      fail("sinew curtain: cg_tolerance = ", settings.cg_tolerance, ", must be positive");
+    if (!(settings.cfl > 0 && settings.cfl <= 1)) fail("sinew curtain: cfl = ", settings.cfl, ", must be in (0, 1]");
+    m_configuration = std::make_unique<btDefaultCollisionConfiguration>();
+    m_dispatcher = std::make_unique<btCollisionDispatcher>(m_configuration.get());
+    m_broadphase = std::make_unique<btDbvtBroadphase>();
+    m_solver = std::make_unique<btSequentialImpulseConstraintSolver>();
+    m_world = std::make_unique<btDiscreteDynamicsWorld>(m_dispatcher.get(), m_broadphase.get(), m_solver.get(), m_configuration.get());
+    m_world->setGravity(btVector3(0, btScalar(-spec.gravity), 0));
+    m_rings = std::make_unique<RodAndRings>(*m_world, spec);
+    // Per-tick statistics: a post-tick callback installed before the coupling, which chains it.
+    m_world->setInternalTickCallback(&SinewCurtain::after_tick, this, false);
+
+    bullet::CouplingSettings coupling;
+    coupling.collisions = false;  // the benchmark measures the binding, not contact (as for the peers)
+    m_coupling = std::make_unique<bullet::Coupling>(m_world.get(), coupling);
+    System& system = m_coupling->system();
+
+    ClothGridSettings grid;
+    grid.nx = grid.ny = spec.n;
+    grid.width = grid.height = spec.size;
+    grid.mass = spec.cloth_mass;
+    grid.stretch_stiffness = spec.stretch_stiffness;
+    grid.stretch_damping = spec.stretch_damping;
+    grid.bending_stiffness = spec.bending_stiffness;
+    grid.origin = node_rest_position(spec, 0, 0);
+    grid.across = Vec3::UnitX();
+    grid.down = -Vec3::UnitY();
+    m_cloth = add_cloth_grid(system, grid);
+    for (Index node : m_cloth.nodes) system.particles().v.col(node) = spec.initial_velocity;
+    // The grid places node (i, j) at origin + i dx across + j dx down, which rounds differently from
+    // node_rest_position: put every node exactly where the spec (and the peers) put it. The forces took
+    // their rest state from the grid's positions, which differ by an ulp at most.
+    for (int j = 0; j < spec.n; ++j)
+      for (int i = 0; i < spec.n; ++i) system.particles().x.col(m_cloth.node(i, j)) = node_rest_position(spec, i, j);
+    for (const BoundPivot& p : m_pivots) {
+      m_bound_mass += system.input_mass()[m_cloth.node(p.node, 0)];
+      m_coupling->bind(m_cloth.node(p.node, 0), &m_rings->ring(p.ring), p.local);
+    }
+
+    StepSettings& step = system.step_settings();
+    step.implicit_elasticity = settings.implicit_elasticity;
+    step.cg_tolerance = settings.cg_tolerance;
+    step.cfl = settings.cfl;
+    step.threads = settings.threads;
+    system.finalize();
+  }
+
+  ~SinewCurtain() override {
+    m_coupling.reset();  // restores the world's callbacks before the world goes
+    m_rings.reset();
+  }
+
+  std::string system() const override { return m_settings.implicit_elasticity ? "sinew-implicit" : "sinew"; }
+
+  void advance(double frame_dt, int steps) override {
+    if (!(std::isfinite(frame_dt) && frame_dt > 0)) fail(system(), ": frame_dt = ", frame_dt, " s, must be positive");
+    if (steps < 1) fail(system(), ": steps = ", steps, ", needs at least 1");
+    m_world->stepSimulation(btScalar(frame_dt), steps, btScalar(frame_dt / steps));
+  }
+
+  Vectors3 nodes() const override {
+    const Vectors3& x = m_coupling->system().particles().x;
+    Vectors3 out(3, static_cast<Index>(m_cloth.nodes.size()));
+    for (std::size_t k = 0; k < m_cloth.nodes.size(); ++k) out.col(static_cast<Index>(k)) = x.col(m_cloth.nodes[k]);
+    return out;
+  }
+
+  AttachmentError attachment() const override { return attachment_error(*m_rings, nodes(), m_pivots); }
+
+  double momentum_along_rod() const override {
+    const System& s = m_coupling->system();
+    double p = m_rings->momentum_along_rod();
+    for (Index node : m_cloth.nodes)
+      if (s.particles().kind[node] == ParticleKind::free) p += s.particles().mass[node] * s.particles().v(0, node);
+    return p;
+  }
+
+  double energy() const override {
+    System& s = m_coupling->system();
+    // potential_energy: elastic plus the free particles' gravity; the rings' gravity is Bullet's.
+    double e = m_rings->energy(m_spec.gravity) + s.potential_energy();
+    for (Index node : m_cloth.nodes)
+      if (s.particles().kind[node] == ParticleKind::free) e += 0.5 * s.particles().mass[node] * s.particles().v.col(node).squaredNorm();
+    return e;
+  }
+
+  bool healthy() const override {
+    const System& s = m_coupling->system();
+    for (Index node : m_cloth.nodes) {
+      const Vec3 x = s.particles().x.col(node), v = s.particles().v.col(node);
+      if (!all_finite(x) || !all_finite(v) || !(x.norm() <= kFarAway)) return false;
+    }
+    return m_rings->healthy();
+  }
+
+  std::string mismatch() const override {
+    std::ostringstream out;
+    out << "the bound nodes' " << m_bound_mass * 1e3
+        << " g is not added to the rings (Bullet owns their mass properties; the peers keep it on the nodes)";
+    return out.str();
+  }
+
+  const StepStats& total_stats() const override { return m_total; }
+
+ private:
+  static void after_tick(btDynamicsWorld* world, btScalar) {
+    auto* self = static_cast<SinewCurtain*>(world->getWorldUserInfo());
+    self->m_total += self->m_coupling->last_stats();
+  }
+
+  CurtainSpec m_spec;
+  SinewSettings m_settings;
+  std::vector<BoundPivot> m_pivots;
+  std::unique_ptr<btDefaultCollisionConfiguration> m_configuration;
+  std::unique_ptr<btCollisionDispatcher> m_dispatcher;
+  std::unique_ptr<btDbvtBroadphase> m_broadphase;
+  std::unique_ptr<btSequentialImpulseConstraintSolver> m_solver;
+  std::unique_ptr<btDiscreteDynamicsWorld> m_world;
+  std::unique_ptr<RodAndRings> m_rings;
+  std::unique_ptr<bullet::Coupling> m_coupling;
+  ClothGrid m_cloth;
+  double m_bound_mass = 0.0;
+  StepStats m_total;
+};
+
+}  // namespace
+
+std::unique_ptr<SinewCurtainRun> make_sinew_curtain(const CurtainSpec& spec, const SinewSettings& settings) {
+  return std::make_unique<SinewCurtain>(spec, settings);
+}
+
+}  // namespace sinew::bench

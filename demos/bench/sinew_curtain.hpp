@@ -1,0 +1,34 @@
+// sinew running the benchmark curtain: the cloth of add_cloth_grid hard-bound (W, no DOFs of its own)
+// to the rings of RodAndRings in a btDiscreteDynamicsWorld, coupled by sinew::bullet::Coupling
+// (Sifakis et al. 2007, section 5). Bullet integrates the rings and their slider constraints; sinew's
+// Newmark step runs once per Bullet tick, substepped when the tick exceeds the explicit forces'
+// stable step.
+#pragma once
+
+#include "curtain_bench.hpp"
+
+#include "sinew/step_stats.hpp"
+
+#include <memory>
+
+namespace sinew::bench {
+
+struct SinewSettings {
+  /// Edge springs enter both velocity solves implicitly (StepSettings::implicit_elasticity): no
+  /// stable-step limit from them, first-order accurate in their stiff modes.
+  bool implicit_elasticity = false;
+  double cg_tolerance = 1e-9;  ///< StepSettings::cg_tolerance [m/s]
+  double cfl = 0.9;            ///< StepSettings::cfl
+  int threads = 1;             ///< StepSettings::threads (bit-identical for any count)
+};
+
+/// "sinew", or "sinew-implicit" with implicit elasticity.
+class SinewCurtainRun : public CurtainRun {
+ public:
+  /// Per-phase timings, substeps and CG iterations summed over every tick since construction.
+  virtual const StepStats& total_stats() const = 0;
+};
+
+std::unique_ptr<SinewCurtainRun> make_sinew_curtain(const CurtainSpec& spec, const SinewSettings& settings = {});
+
+}  // namespace sinew::bench
