@@ -1,5 +1,6 @@
 #include "curtain_bench.hpp"
 
+#include <BulletDynamics/Dynamics/btActionInterface.h>
 #include <btBulletDynamicsCommon.h>
 
 #include <algorithm>
@@ -25,7 +26,48 @@ bool finite(const btVector3& v) { return std::isfinite(v.x()) && std::isfinite(v
 
 constexpr double kFarAway = 1000.0;  // [m]: the healthy() bound
 
+bool dynamic_parent(RingParent p) { return p == RingParent::dynamic || p == RingParent::sleeping; }
+
+// Counts the simulated time: Bullet runs every action once at the end of each internal tick.
+class TickClock final : public btActionInterface {
+ public:
+  explicit TickClock(double* time) : m_time(time) {}
+  void updateAction(btCollisionWorld*, btScalar dt) override { *m_time += static_cast<double>(dt); }
+  void debugDraw(btIDebugDraw*) override {}
+
+ private:
+  double* m_time;
+};
+
+// A kinematic ring's prescribed pose: its rest centre moved by speed * t along the rod, t being the time
+// simulated so far. Bullet reads it once per stepSimulation (btRigidBody::saveKinematicState), jumps the
+// body there and sets its velocity to cover the move over that call's time.
+class KinematicSlide final : public btMotionState {
+ public:
+  KinematicSlide(const btTransform& start, double speed, const double* time) : m_start(start), m_speed(speed), m_time(time) {}
+  void getWorldTransform(btTransform& pose) const override {
+    pose = m_start;
+    pose.getOrigin() += btVector3(btScalar(m_speed * *m_time), 0, 0);
+  }
+  void setWorldTransform(const btTransform&) override {}  // Bullet never moves a kinematic body itself
+
+ private:
+  btTransform m_start;
+  double m_speed;
+  const double* m_time;
+};
+
 }  // namespace
+
+const char* to_string(RingParent parent) {
+  switch (parent) {
+    case RingParent::dynamic: return "dynamic";
+    case RingParent::sleeping: return "sleeping";
+    case RingParent::kinematic: return "kinematic";
+    case RingParent::fixed: return "static";
+  }
+  return "?";
+}
 
 void validate(const CurtainSpec& s) {
   if (s.n < 2) fail("curtain: n = ", s.n, ", needs at least 2 nodes per side");
@@ -45,6 +87,10 @@ void validate(const CurtainSpec& s) {
   if (!std::isfinite(s.rod_height)) fail("curtain: rod_height = ", s.rod_height, " m, must be finite");
   if (!all_finite(s.initial_velocity)) fail("curtain: initial_velocity is not finite");
   if (!(std::isfinite(s.gravity) && s.gravity >= 0)) fail("curtain: gravity = ", s.gravity, " m/s^2, must be finite and >= 0");
+  if (!std::isfinite(s.ring_spin)) fail("curtain: ring_spin = ", s.ring_spin, " rad/s, must be finite");
+  if (s.ring_spin != 0.0 && s.parent != RingParent::dynamic)
+    fail("curtain: ring_spin = ", s.ring_spin, " rad/s needs awake dynamic rings, not ", to_string(s.parent), " ones");
+  if (!std::isfinite(s.kinematic_speed)) fail("curtain: kinematic_speed = ", s.kinematic_speed, " m/s, must be finite");
 }
 
 std::vector<std::pair<int, int>> bound_nodes(const CurtainSpec& spec) {
@@ -99,28 +145,57 @@ RodAndRings::RodAndRings(btDynamicsWorld& world, const CurtainSpec& spec) : m_wo
   m_world->addRigidBody(m_rod.get(), btBroadphaseProxy::StaticFilter, kCollidesWithNothing);
 
   const btVector3 inertia = to_bullet(ring_inertia(spec));
+  const bool dynamic = dynamic_parent(spec.parent);
+  if (spec.parent == RingParent::kinematic) {
+    m_clock = std::make_unique<TickClock>(&m_time);
+    m_world->addAction(m_clock.get());
+  }
   for (int k = 0; k < spec.rings; ++k) {
     const Vec3 centre = ring_rest_centre(spec, k);
-    m_states.push_back(std::make_unique<btDefaultMotionState>(btTransform(btQuaternion::getIdentity(), to_bullet(centre))));
+    const btTransform pose(btQuaternion::getIdentity(), to_bullet(centre));
+    if (spec.parent == RingParent::kinematic)
+      m_states.push_back(std::make_unique<KinematicSlide>(pose, spec.kinematic_speed, &m_time));
+    else
+      m_states.push_back(std::make_unique<btDefaultMotionState>(pose));
+    const double mass = dynamic ? spec.ring_mass : 0.0;  // Bullet: mass 0 is a static or kinematic body
     auto ring = std::make_unique<btRigidBody>(
-        btRigidBody::btRigidBodyConstructionInfo(btScalar(spec.ring_mass), m_states.back().get(), m_ring_shape.get(), inertia));
-    ring->setLinearVelocity(to_bullet(spec.initial_velocity));
-    // Bullet 3.24's deformable anchors explode on sleeping bodies, and a sleeping ring would stop the
-    // classic anchor's impulses too: keep every ring awake.
-    ring->setActivationState(DISABLE_DEACTIVATION);
-    m_world->addRigidBody(ring.get(), btBroadphaseProxy::DefaultFilter, kCollidesWithNothing);
+        btRigidBody::btRigidBodyConstructionInfo(btScalar(mass), m_states.back().get(), m_ring_shape.get(), dynamic ? inertia : btVector3(0, 0, 0)));
+    switch (spec.parent) {
+      case RingParent::dynamic:
+        ring->setLinearVelocity(to_bullet(spec.initial_velocity));
+        ring->setAngularVelocity(btVector3(btScalar(spec.ring_spin), 0, 0));
+        // Bullet 3.24's deformable anchors explode on sleeping bodies, and a sleeping ring would stop the
+        // classic anchor's impulses too: keep every ring awake.
+        ring->setActivationState(DISABLE_DEACTIVATION);
+        break;
+      case RingParent::sleeping:
+        // Asleep means at rest (Bullet zeroes a body's velocity when it puts it to sleep): no initial velocity.
+        ring->setActivationState(ISLAND_SLEEPING);
+        break;
+      case RingParent::kinematic:
+        ring->setCollisionFlags(ring->getCollisionFlags() | btCollisionObject::CF_KINEMATIC_OBJECT);
+        ring->setActivationState(DISABLE_DEACTIVATION);  // a sleeping kinematic body is not moved
+        break;
+      case RingParent::fixed:
+        break;
+    }
+    m_world->addRigidBody(ring.get(), dynamic ? btBroadphaseProxy::DefaultFilter : btBroadphaseProxy::StaticFilter, kCollidesWithNothing);
+    // Whatever addRigidBody did to the activation state, a sleeping ring starts asleep.
+    if (spec.parent == RingParent::sleeping) ring->forceActivationState(ISLAND_SLEEPING);
 
-    // Slider frames: x of both frames along the rod. The rod's frame sits at the ring's starting point so
-    // the slide coordinate starts at 0; the ring's frame is its centre.
-    const btTransform in_rod(btQuaternion::getIdentity(), btVector3(btScalar(centre.x()), 0, 0));
-    const btTransform in_ring = btTransform::getIdentity();
-    auto slider = std::make_unique<btSliderConstraint>(*m_rod, *ring, in_rod, in_ring, true);
-    slider->setLowerLinLimit(1);  // lower > upper: no limit along the rod
-    slider->setUpperLinLimit(-1);
-    slider->setLowerAngLimit(1);  // lower > upper: free to turn about the rod
-    slider->setUpperAngLimit(-1);
-    m_world->addConstraint(slider.get(), true);
-    m_sliders.push_back(std::move(slider));
+    if (dynamic) {
+      // Slider frames: x of both frames along the rod. The rod's frame sits at the ring's starting point so
+      // the slide coordinate starts at 0; the ring's frame is its centre.
+      const btTransform in_rod(btQuaternion::getIdentity(), btVector3(btScalar(centre.x()), 0, 0));
+      const btTransform in_ring = btTransform::getIdentity();
+      auto slider = std::make_unique<btSliderConstraint>(*m_rod, *ring, in_rod, in_ring, true);
+      slider->setLowerLinLimit(1);  // lower > upper: no limit along the rod
+      slider->setUpperLinLimit(-1);
+      slider->setLowerAngLimit(1);  // lower > upper: free to turn about the rod
+      slider->setUpperAngLimit(-1);
+      m_world->addConstraint(slider.get(), true);
+      m_sliders.push_back(std::move(slider));
+    }
     m_rings.push_back(std::move(ring));
   }
 }
@@ -129,6 +204,7 @@ RodAndRings::~RodAndRings() {
   for (auto& slider : m_sliders) m_world->removeConstraint(slider.get());
   for (auto& ring : m_rings) m_world->removeRigidBody(ring.get());
   m_world->removeRigidBody(m_rod.get());
+  if (m_clock) m_world->removeAction(m_clock.get());
 }
 
 btRigidBody& RodAndRings::ring(int k) const {
@@ -151,13 +227,15 @@ double RodAndRings::joint_error() const {
 
 double RodAndRings::momentum_along_rod() const {
   double p = 0.0;
-  for (const auto& ring : m_rings) p += ring->getLinearVelocity().x() / ring->getInvMass();
+  for (const auto& ring : m_rings)
+    if (ring->getInvMass() > 0) p += ring->getLinearVelocity().x() / ring->getInvMass();
   return p;
 }
 
 double RodAndRings::energy(double gravity) const {
   double e = 0.0;
   for (const auto& ring : m_rings) {
+    if (!(ring->getInvMass() > 0)) continue;  // infinite mass: not part of the moving system
     const double m = 1.0 / ring->getInvMass();
     const btVector3& v = ring->getLinearVelocity();
     // Spin energy in the body frame: 1/2 w_b^T I w_b with w_b = R^T w and I the principal moments.

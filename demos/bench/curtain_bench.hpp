@@ -6,6 +6,8 @@
 // constraint: free to slide along and turn about the rod). Node (i, 0) of the top row is bound to
 // ring round(i * (rings - 1) / (n - 1)) when `bind_all`, else only the nodes nearest each ring are.
 // Every node starts with `initial_velocity` (a swing along z plus a slide along x).
+// The stability suite varies the parents: rings spun about the rod at the start, or rings that are
+// static, kinematic or asleep (see RingParent).
 #pragma once
 
 #include "sinew/types.hpp"
@@ -16,6 +18,16 @@
 #include <vector>
 
 namespace sinew::bench {
+
+/// What the rings are as Bullet bodies (the parents of the bound nodes).
+enum class RingParent {
+  dynamic,    ///< dynamic rings on sliders, kept awake (the benchmark's curtain)
+  sleeping,   ///< dynamic rings on sliders, at rest and asleep at the start, deactivation allowed
+  kinematic,  ///< CF_KINEMATIC_OBJECT rings sliding along the rod at kinematic_speed; no sliders
+  fixed,      ///< static rings (mass 0) at their rest centres; no sliders
+};
+/// "dynamic", "sleeping", "kinematic", "static".
+const char* to_string(RingParent parent);
 
 struct CurtainSpec {
   int n = 40;                        ///< nodes per side
@@ -29,6 +41,15 @@ struct CurtainSpec {
   double ring_radius = 0.04;         ///< [m] (inertia of a thin ring: m R^2 about its axis)
   double rod_height = 2.1;           ///< y of the rod axis [m]; the top row hangs ring_radius below it
   bool bind_all = false;             ///< every top-row node bound (else one per ring)
+  RingParent parent = RingParent::dynamic;
+  /// Initial angular velocity of every ring about the rod (x) [rad/s], for RingParent::dynamic only: the
+  /// spin-up is impulsive, the rings then turn freely on their sliders (the cloth's nodes start with
+  /// initial_velocity; sinew's bound nodes take their ring's velocity, the peers' anchors correct theirs).
+  double ring_spin = 0.0;
+  /// Velocity of kinematic rings along the rod (x) [m/s]. They start moving one frame after the start:
+  /// Bullet derives a kinematic body's velocity from the pose its motion state gives at the start of each
+  /// stepSimulation, and that pose can only follow the time already simulated.
+  double kinematic_speed = 0.2;
   Vec3 initial_velocity = Vec3(0.2, 0.0, 1.0);  ///< [m/s], every cloth node and ring
   double gravity = 9.81;             ///< [m/s^2], along -y
 };
@@ -97,8 +118,9 @@ class CurtainRun {
 
 }  // namespace sinew::bench
 
+class btActionInterface;
 class btCollisionShape;
-class btDefaultMotionState;
+class btMotionState;
 class btDynamicsWorld;
 class btRigidBody;
 class btSliderConstraint;
@@ -113,7 +135,12 @@ namespace sinew::bench {
 /// the ring's radius, only give Bullet an AABB; the deformable anchor also evaluates the sphere's
 /// distance field once). The benchmark measures the binding, not contact.
 /// The world's gravity must be set before construction (Bullet copies it into each body when added).
-/// The rings start with the spec's initial velocity and no spin; deactivation is disabled.
+/// Dynamic rings start with the spec's initial velocity and ring_spin about the rod, deactivation disabled;
+/// sleeping ones at rest and asleep (ISLAND_SLEEPING), deactivation allowed. Static and kinematic rings (spec.parent) have
+/// no slider: the joint error then only says whether they stay on the axis. A kinematic ring's motion
+/// state gives the pose start + kinematic_speed t, with t the time simulated before the current
+/// stepSimulation (counted by an action at the end of every tick), so Bullet moves it in the standard way
+/// and reports the velocity of that move.
 class RodAndRings {
  public:
   RodAndRings(btDynamicsWorld& world, const CurtainSpec& spec);
@@ -131,17 +158,21 @@ class RodAndRings {
   Vec3 world_point(int k, const Vec3& local) const;
   /// Largest distance of a ring's centre from the rod axis [m] (what the slider constraint should keep at 0).
   double joint_error() const;
-  /// Sum of m v_x over the rings [kg m/s].
+  /// Sum of m v_x over the dynamic rings [kg m/s] (static and kinematic ones have infinite mass and are
+  /// not part of the moving system).
   double momentum_along_rod() const;
-  /// Kinetic (translation and spin) plus gravitational (m g y) energy of the rings [J].
+  /// Kinetic (translation and spin) plus gravitational (m g y) energy of the dynamic rings [J].
   double energy(double gravity) const;
+
   /// Every ring's position, orientation and velocities finite and its centre within 1 km of the origin.
   bool healthy() const;
 
  private:
   btDynamicsWorld* m_world;
+  double m_time = 0.0;  // simulated time, advanced at the end of every tick by m_clock [s]
+  std::unique_ptr<btActionInterface> m_clock;
   std::unique_ptr<btCollisionShape> m_rod_shape, m_ring_shape;
-  std::vector<std::unique_ptr<btDefaultMotionState>> m_states;
+  std::vector<std::unique_ptr<btMotionState>> m_states;
   std::unique_ptr<btRigidBody> m_rod;
   std::vector<std::unique_ptr<btRigidBody>> m_rings;
   std::vector<std::unique_ptr<btSliderConstraint>> m_sliders;

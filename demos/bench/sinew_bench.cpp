@@ -11,7 +11,7 @@
 // plot_bench.py draws the work-precision plot from them.
 //
 //   sinew-bench [--sizes 20,40] [--runs 5] [--threads N] [--seconds 2] [--out DIR] [--deformable-max N]
-//               [--quick] [--no-stability] [--no-plot]
+//               [--big 150] [--quick] [--no-stability] [--no-plot]
 #include "bullet_peers.hpp"
 #include "machine.hpp"
 #include "sinew_curtain.hpp"
@@ -50,6 +50,7 @@ struct Options {
   std::string out = "bench-results";
   bool stability = true;
   bool plot = true;
+  int big = 150;              // the half-real-time check's resolution (0: skip)
 };
 
 /// One way of running one system: Bullet ticks per 1/60 s frame, and sinew's CG tolerance and CFL.
@@ -191,6 +192,77 @@ std::vector<Setting> sweep(const std::string& system) {
   return out;
 }
 
+/// One line of the work-precision sweep, kept for the goals.
+struct Row {
+  std::string system;
+  int n = 0, ticks = 0;
+  double ms_per_sim_s = kInfinity, rms_t2 = kInfinity;
+  bool ok = false;
+};
+
+bool is_sinew(const std::string& system) { return system.rfind("sinew", 0) == 0; }
+
+/// The speed goals, each judged from the sweep: the coupled tick at 40 x 40 and 1/240 s against
+/// each peer's, and at equal error the time per simulated second of sinew's cheapest setting that is
+/// at least as accurate as each peer setting.
+void print_goals(const std::vector<Row>& rows, const Options& o) {
+  std::printf("\n## goals\n");
+  for (const Row& r : rows) {
+    if (r.n != 40 || r.ticks != 4 || is_sinew(r.system) || !r.ok) continue;
+    double best = kInfinity;
+    std::string which;
+    for (const Row& s : rows)
+      if (s.n == 40 && s.ticks == 4 && is_sinew(s.system) && s.ok && s.ms_per_sim_s < best) best = s.ms_per_sim_s, which = s.system;
+    const double factor = r.ms_per_sim_s / best;
+    std::printf("40x40, 1/240 s tick: %s %.3f ms per tick, %s (fastest setting) %.3f ms: %.2fx (%s)\n", r.system.c_str(),
+                r.ms_per_sim_s / 240.0, which.c_str(), best / 240.0, factor,
+                r.system == "bullet-classic" ? (factor > 1 ? "goal met: faster" : "goal missed: slower")
+                                             : (factor >= 20 ? "goal met: at least 20x" : "goal missed: below 20x"));
+  }
+  int met = 0, total = 0;
+  for (const Row& peer : rows) {
+    if (is_sinew(peer.system) || !peer.ok) continue;
+    double best = kInfinity;
+    std::string which;
+    int ticks = 0;
+    for (const Row& s : rows)
+      if (s.n == peer.n && is_sinew(s.system) && s.ok && s.rms_t2 <= peer.rms_t2 && s.ms_per_sim_s < best)
+        best = s.ms_per_sim_s, which = s.system, ticks = s.ticks;
+    ++total;
+    const bool win = best < peer.ms_per_sim_s;
+    met += win;
+    std::printf("equal error, %dx%d: %s at %d ticks (rms %.2e m) %.1f ms/sim-s; sinew at that error or better: %s\n", peer.n, peer.n,
+                peer.system.c_str(), peer.ticks, peer.rms_t2, peer.ms_per_sim_s,
+                std::isfinite(best) ? (which + " " + std::to_string(ticks) + " ticks, " + std::to_string(best).substr(0, 7) + " ms/sim-s" +
+                                       (win ? " (faster)" : " (slower)")).c_str()
+                                    : "no setting in the sweep is that accurate (slower)");
+  }
+  std::printf("equal error: sinew faster in %d of %d peer settings (sizes", met, total);
+  for (int n : o.sizes) std::printf(" %d", n);
+  std::printf(")\n");
+}
+
+/// One simulated second (60 frames at 4 ticks) of an n x n curtain in sinew with implicit elasticity:
+/// the goal is at most two wall seconds at 150 x 150.
+void print_big(const Options& o) {
+  CurtainSpec spec;
+  spec.n = o.big;
+  SinewSettings settings;
+  settings.implicit_elasticity = true;
+  settings.cg_tolerance = 1e-7;
+  settings.threads = o.threads;
+  auto run = make_sinew_curtain(spec, settings);
+  const auto start = Clock::now();
+  for (int f = 0; f < 60; ++f) run->advance(kFrame, 4);
+  const double seconds = std::chrono::duration<double>(Clock::now() - start).count();
+  const StepStats& st = run->total_stats();
+  std::printf("%dx%d curtain, sinew-implicit, 4 ticks per frame, tol 1e-7, %d threads: one simulated second in %.2f wall s "
+              "(%.1f CG iterations per solve, attachment %.1e m, %s): %s\n",
+              o.big, o.big, o.threads, seconds, 0.5 * (st.cg_iterations_step1 + st.cg_iterations_step4) / std::max(1, st.substeps),
+              run->attachment().bound_node, run->healthy() ? "healthy" : "NOT healthy",
+              seconds <= 2.0 ? "goal met (half real time or better)" : "goal missed (slower than half real time)");
+}
+
 std::FILE* open_csv(const Options& o, const char* name, const char* header) {
   const std::string path = o.out + "/" + name;
   std::FILE* f = std::fopen(path.c_str(), "w");
@@ -202,7 +274,7 @@ std::FILE* open_csv(const Options& o, const char* name, const char* header) {
 void usage() {
   std::fprintf(stderr,
                "usage: sinew-bench [--sizes 20,40] [--runs 5] [--threads N] [--seconds 2] [--out DIR] [--deformable-max N]\n"
-               "                   [--quick] [--no-stability] [--no-plot]\n");
+               "                   [--big 150] [--quick] [--no-stability] [--no-plot]\n");
 }
 
 Options parse(int argc, char** argv) {
@@ -225,6 +297,7 @@ Options parse(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--seconds")) o.seconds = std::atof(next());
     else if (!std::strcmp(argv[i], "--out")) o.out = next();
     else if (!std::strcmp(argv[i], "--deformable-max")) o.deformable_max = std::atoi(next());
+    else if (!std::strcmp(argv[i], "--big")) o.big = std::atoi(next());
     else if (!std::strcmp(argv[i], "--quick")) {
       // A smoke run of every code path (CTest runs it): tiny cloth, short horizon, one timed run.
       o.sizes = {8};
@@ -232,6 +305,7 @@ Options parse(int argc, char** argv) {
       o.seconds = 0.25;
       o.timing_frames = 3;
       o.deformable_max = 8;
+      o.big = 0;
     } else if (!std::strcmp(argv[i], "--no-stability")) o.stability = false;
     else if (!std::strcmp(argv[i], "--no-plot")) o.plot = false;
     else {
@@ -270,6 +344,7 @@ int main(int argc, char** argv) try {
   std::FILE* phases = open_csv(o, "phases.csv",
                                "system,n,ticks,substeps_per_tick,cg_iterations_per_substep,ms_per_tick,step1,step2,step3,step4,step5,forces,cg");
 
+  std::vector<Row> rows;
   for (int n : o.sizes) {
     CurtainSpec spec;
     spec.n = n;
@@ -334,6 +409,7 @@ int main(int argc, char** argv) try {
                      run.worst.bound_node_before_overwrite, run.worst.ring_joint, run.momentum_change, run.energy_start, run.energy_end,
                      run.survived ? 1 : 0, run.failed_frame);
         std::fflush(wp);
+        rows.push_back({system, n, s.ticks, ms, e2.rms, run.survived && std::isfinite(e2.rms)});
         if (system.rfind("sinew", 0) == 0 && s.ticks == 4 && run.survived) {
           const StepStats& st = run.stats;
           const double ticks = frames * s.ticks, per = 1.0 / ticks;
@@ -348,6 +424,8 @@ int main(int argc, char** argv) try {
     std::printf("  (bound: largest distance of a bound node from its pivot over the run; for bullet-deformable measured before it\n"
                 "   overwrites anchored nodes, which leaves 0 after; joint: ring centre from the rod axis; dp_x: momentum along the rod)\n");
   }
+  print_goals(rows, o);
+  if (o.big > 0) print_big(o);
   std::fclose(wp);
   std::fclose(refs);
   std::fclose(agree);
@@ -364,7 +442,13 @@ int main(int argc, char** argv) try {
 
   if (o.stability) {
     std::printf("\n## stability suite\n");
-    // STABILITY-TABLE
+    const std::vector<StabilityResult> results = run_stability_suite(stability_systems());
+    print_stability_table(stdout, results);
+    const std::string path = o.out + "/stability.csv";
+    std::FILE* csv = std::fopen(path.c_str(), "w");
+    if (!csv) fail("sinew-bench: cannot write ", path);
+    write_stability_csv(csv, results);
+    std::fclose(csv);
   }
 
   if (o.plot) {

@@ -20,6 +20,10 @@ class SinewCurtain final : public SinewCurtainRun {
     if (!(std::isfinite(settings.cg_tolerance) && settings.cg_tolerance > 0))
       fail("sinew curtain: cg_tolerance = ", settings.cg_tolerance, ", must be positive");
     if (!(settings.cfl > 0 && settings.cfl <= 1)) fail("sinew curtain: cfl = ", settings.cfl, ", must be in (0, 1]");
+    if (!(std::isfinite(settings.binding_spring_stiffness) && settings.binding_spring_stiffness >= 0))
+      fail("sinew curtain: binding_spring_stiffness = ", settings.binding_spring_stiffness, " N/m, must be finite and >= 0");
+    if (!(std::isfinite(settings.binding_spring_damping_ratio) && settings.binding_spring_damping_ratio >= 0))
+      fail("sinew curtain: binding_spring_damping_ratio = ", settings.binding_spring_damping_ratio, ", must be finite and >= 0");
     m_configuration = std::make_unique<btDefaultCollisionConfiguration>();
     m_dispatcher = std::make_unique<btCollisionDispatcher>(m_configuration.get());
     m_broadphase = std::make_unique<btDbvtBroadphase>();
@@ -53,8 +57,15 @@ class SinewCurtain final : public SinewCurtainRun {
     for (int j = 0; j < spec.n; ++j)
       for (int i = 0; i < spec.n; ++i) system.particles().x.col(m_cloth.node(i, j)) = node_rest_position(spec, i, j);
     for (const BoundPivot& p : m_pivots) {
-      m_bound_mass += system.input_mass()[m_cloth.node(p.node, 0)];
-      m_coupling->bind(m_cloth.node(p.node, 0), &m_rings->ring(p.ring), p.local);
+      const Index node = m_cloth.node(p.node, 0);
+      if (settings.binding_spring_stiffness > 0) {
+        // The node keeps its mass and DOFs; attachment() then measures the springs' stretch.
+        m_coupling->attach(node, &m_rings->ring(p.ring), p.local, settings.binding_spring_stiffness,
+                           settings.binding_spring_damping_ratio);
+      } else {
+        m_bound_mass += system.input_mass()[node];
+        m_coupling->bind(node, &m_rings->ring(p.ring), p.local);
+      }
     }
 
     StepSettings& step = system.step_settings();
@@ -115,8 +126,12 @@ class SinewCurtain final : public SinewCurtainRun {
 
   std::string mismatch() const override {
     std::ostringstream out;
-    out << "the bound nodes' " << m_bound_mass * 1e3
-        << " g is not added to the rings (Bullet owns their mass properties; the peers keep it on the nodes)";
+    if (m_settings.binding_spring_stiffness > 0)
+      out << "bound nodes tied by binding springs (k = " << m_settings.binding_spring_stiffness << " N/m, damping ratio "
+          << m_settings.binding_spring_damping_ratio << ") instead of hard bindings";
+    else
+      out << "the bound nodes' " << m_bound_mass * 1e3
+          << " g is not added to the rings (Bullet owns their mass properties; the peers keep it on the nodes)";
     return out.str();
   }
 

@@ -1,4 +1,5 @@
 // sinew running the benchmark curtain: the cloth of add_cloth_grid hard-bound (W, no DOFs of its own)
+// (or, with SinewSettings::binding_spring_stiffness, tied by binding springs)
 // to the rings of RodAndRings in a btDiscreteDynamicsWorld, coupled by sinew::bullet::Coupling
 // (Sifakis et al. 2007, section 5). Bullet integrates the rings and their slider constraints; sinew's
 // Newmark step runs once per Bullet tick, substepped when the tick exceeds the explicit forces'
@@ -20,6 +21,11 @@ struct SinewSettings {
   double cg_tolerance = 1e-9;  ///< StepSettings::cg_tolerance [m/s]
   double cfl = 0.9;            ///< StepSettings::cfl
   int threads = 1;             ///< StepSettings::threads (bit-identical for any count)
+  /// 0: the bound nodes are hard-bound to their rings (W, no DOFs of their own). Positive: they stay
+  /// free particles tied to their pivots by zero-rest-length binding springs of this stiffness
+  /// (Coupling::attach, implicit in the step, eq. 5) [N/m].
+  double binding_spring_stiffness = 0.0;
+  double binding_spring_damping_ratio = 1.0;  ///< of critical, for binding springs
 };
 
 /// "sinew", or "sinew-implicit" with implicit elasticity.
