@@ -2,6 +2,7 @@
 #include "cloth.hpp"
 #include "sinew/forces/corotated_tets.hpp"
 #include "sinew/forces/edge_springs.hpp"
+#include "sinew/parallel.hpp"
 #include "sinew/system.hpp"
 #include "test_forces_local.hpp"
 #include "test_util.hpp"
@@ -152,6 +153,46 @@ TEST(System, StepAllocatesNothingAfterItsFirstCall) {
   g_allocations = 0;
   g_count_allocations = true;
   for (int i = 0; i < 5; ++i) s.step(dt);
+  g_count_allocations = false;
+  EXPECT_EQ(g_allocations.load(), 0);
+}
+
+// A cloth big enough for every parallel path (particle loops, CG vectors, chunked edge products):
+// 1 and 2 threads must give the same bits, with explicit and with implicit elasticity.
+TEST(System, OneAndTwoThreadsAreBitIdentical) {
+  for (bool implicit : {false, true}) {
+    auto run = [implicit](int threads) {
+      System s;
+      scenes::HangingClothSettings settings;
+      settings.cloth.nx = settings.cloth.ny = 50;
+      scenes::add_hanging_cloth(s, settings);
+      EXPECT_GE(s.particles().size(), parallel::kMinParallelItems);
+      s.step_settings().threads = threads;
+      s.step_settings().implicit_elasticity = implicit;
+      s.step_settings().cg_tolerance = 1e-8;
+      const double dt = implicit ? 1.0 / 240 : 0.9 * s.stable_dt();
+      for (int i = 0; i < 8; ++i) s.step(dt);
+      return s;
+    };
+    const System a = run(1), b = run(2);
+    EXPECT_EQ(a.state_hash(), b.state_hash()) << (implicit ? "implicit" : "explicit") << " elasticity";
+    EXPECT_TRUE(a.particles().x == b.particles().x);
+    EXPECT_TRUE(a.particles().v == b.particles().v);
+    EXPECT_TRUE(a.rigid_bodies().w == b.rigid_bodies().w);
+  }
+}
+
+TEST(System, ImplicitStepOfALargeClothOnTwoThreadsAllocatesNothing) {
+  System s;
+  scenes::HangingClothSettings settings;
+  settings.cloth.nx = settings.cloth.ny = 50;
+  scenes::add_hanging_cloth(s, settings);
+  s.step_settings().implicit_elasticity = true;
+  s.step_settings().threads = 2;
+  s.step(1.0 / 240);  // sets up scratch buffers and the thread pool
+  g_allocations = 0;
+  g_count_allocations = true;
+  for (int i = 0; i < 3; ++i) s.step(1.0 / 240);
   g_count_allocations = false;
   EXPECT_EQ(g_allocations.load(), 0);
 }

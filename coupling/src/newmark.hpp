@@ -41,12 +41,16 @@ class Newmark {
   /// c = M v_start + h F; rigid rows (m v + h f, L + h tau).
   void build_rhs(const System& s, double h, const Vectors3& v_start, const Vectors3& body_v, const Vectors3& body_L);
   /// Solves (M - h D - h beta K_springs - h beta_el K+_elastic) y = c by preconditioned CG, y holding
-  /// the initial guess (K, D negative semi-definite).
-  SolveResult solve(System& s, double h, double beta, double beta_el, bool linear_solve);
+  /// the initial guess (K, D negative semi-definite); with `alternative`, a second guess taken
+  /// instead when its residual is below 1e-3 of the tolerance (exact: no iteration needed).
+  SolveResult solve(System& s, double h, double beta, double beta_el, bool linear_solve,
+                    const GeneralizedVector* alternative = nullptr);
   void apply(System& s, double h, double beta, double beta_el, const GeneralizedVector& u, GeneralizedVector& out);
   void build_preconditioner(System& s, double h, double beta, double beta_el, bool jacobi);
   void precondition(const GeneralizedVector& r, GeneralizedVector& z) const;
   void project(GeneralizedVector& u) const;
+  /// project() without the particle mask: for vectors already zero on rows without unknowns.
+  void project_constraints(GeneralizedVector& u) const;
   /// Copies each synchronized soft particle's target state into it (section 3.1).
   void synchronize(System& s, bool positions, bool velocities);
   /// Adds each synchronized soft row's force to its target row and clears the soft row.
@@ -65,12 +69,18 @@ class Newmark {
   Vectors3 m_f, m_g, m_tmp_v, m_apply_f;
   Vectors3 m_bound_force;  // force on each hard-bound row before W^T, from the last step 4
   Vectors6 m_wrench, m_apply_wrench;
+  Vectors6 m_twist_half;  // step 1's half-step twists, step 4's initial guess
   Vectors3 m_body_x_n, m_body_v_n, m_body_w_n, m_body_L_n, m_body_x_np1;
   std::vector<Quat> m_body_q_n, m_body_q_np1;
   std::vector<Mat3> m_body_I;
   std::vector<Eigen::Matrix<double, 6, 6>> m_body_preconditioner;
-  VectorXd m_diag, m_inverse_diag;
+  VectorXd m_diag;                                      // scalar diagonal of forces without blocks
+  Eigen::Matrix<double, 9, Eigen::Dynamic> m_diag_blocks;     // 3x3 diagonal blocks, column-major
+  Eigen::Matrix<double, 9, Eigen::Dynamic> m_inverse_blocks;  // their inverses (with mass), 0 off the unknowns
+  VectorXd m_dof_mass3, m_h_mask3;  // m_dof_mass and h m_dynamic_mask per coordinate (3N)
+  double m_h_mask_h = -1.0;         // the h m_h_mask3 holds
   GeneralizedVector m_c, m_y, m_r_vec, m_z, m_p, m_q;
+  GeneralizedVector m_guess;  // step 1's second initial guess, M^-1 c
   std::vector<CollisionConstraint> m_constraints;
   bool m_has_damping = false;
   bool m_implicit_elasticity = false;  // some elastic force enters the step-1 solve

@@ -181,6 +181,7 @@ void System::add_force_impl(std::unique_ptr<Force> force) {
 void System::finalize() {
   if (m_finalized && !m_topology_changed) return;
   const Index n = m_particles.size();
+  m_force_stable_dt.clear();  // effective masses change below
   m_hard.flatten(n, m_bodies.size());
 
   // Particle kinds: hard-bound rows first, then soft-bound ones, each checked against the others.
@@ -373,9 +374,16 @@ StepStats System::step(double dt) {
 double System::stable_dt() {
   finalize();
   double dt = kInfinity;
-  for (const auto& f : m_forces) {
-    if (m_step_settings.implicit_elasticity && f->has_definite_differentials()) continue;  // no limit when implicit
-    dt = std::min(dt, f->stable_dt(m_effective_mass));
+  // Each force's bound depends on its rest data and the effective masses only, both fixed between
+  // set-ups, so it is computed once (advance() asks every frame; the bending bound alone walks every
+  // hinge's incidence).
+  if (m_force_stable_dt.size() != m_forces.size()) {
+    m_force_stable_dt.clear();
+    for (const auto& f : m_forces) m_force_stable_dt.push_back(f->stable_dt(m_effective_mass));
+  }
+  for (std::size_t k = 0; k < m_forces.size(); ++k) {
+    if (m_step_settings.implicit_elasticity && m_forces[k]->has_definite_differentials()) continue;  // no limit when implicit
+    dt = std::min(dt, m_force_stable_dt[k]);
   }
   return dt;
 }

@@ -65,6 +65,14 @@ class Force {
     add_damping_diagonal(diag);
   }
 
+  /// blocks.col(i) += -(D_ii + b K+_ii), the 3x3 diagonal blocks (column-major, 9 x N) of the implicit
+  /// system, for the block-Jacobi preconditioner. Returns false when the force does not provide
+  /// blocks; the preconditioner then uses add_implicit_diagonal (a multiple of the identity).
+  virtual bool add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const {
+    (void)b, (void)blocks;
+    return false;
+  }
+
   /// True when add_damping_forces adds anything; a scene whose forces all return false and that
   /// has no binding springs runs no linear solve at all.
   virtual bool has_damping() const { return false; }

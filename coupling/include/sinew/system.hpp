@@ -44,8 +44,17 @@ struct SystemSettings {
 };
 
 struct StepSettings {
-  double cg_tolerance = 1e-9;       ///< largest preconditioned residual component [m/s]
+  /// CG stops when every component of the preconditioned residual z = P^-1 (c - S v) is at most
+  /// this [m/s] (absolute, max-norm, on particle velocities and rigid twists alike). It bounds the
+  /// velocity error of stiff, local modes directly and that of smooth modes to within the
+  /// preconditioner's conditioning. Absolute on purpose: a tolerance relative to the initial residual
+  /// would tighten for a good initial guess (step 4 starts from step 1's answer) and loosen for a
+  /// poor one, and one relative to |v| would loosen with speed.
+  double cg_tolerance = 1e-9;
   int cg_max_iterations = 1000;
+  /// Block Jacobi: each particle's 3x3 diagonal block of the implicit system (from forces that
+  /// provide them, Force::add_implicit_diagonal_blocks, else a third of their trace times I), each
+  /// rigid body's 6x6 block with what its hard-bound points carry. Off: the mass matrix alone.
   bool jacobi_preconditioner = true;
   /// Elastic forces with a definite differential (edge springs) enter both velocity solves
   /// implicitly, linearised once: (M - dt/2 D - dt^2/4 K+) v = M v_start + dt/2 F(x), at x^n in
@@ -212,6 +221,7 @@ class System {
   CollisionHook m_collision_hook;
   VectorXd m_inverse_effective_mass;  // per row, 0 for infinite mass
   VectorXd m_effective_mass;          // per row, +inf for kinematic, m_e for bound rows
+  std::vector<double> m_force_stable_dt;  // Force::stable_dt per force at these masses (stable_dt())
   bool m_finalized = false;
   bool m_topology_changed = false;        // bindings changed since set-up: redo it before the next step
   std::vector<ParticleKind> m_input_kind;  // free or kinematic, as created

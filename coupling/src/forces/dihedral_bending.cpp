@@ -156,7 +156,7 @@ DihedralBending::DihedralBending(std::vector<Hinge> hinges, const Vectors3& rest
   m_rest_angle.resize(count);
   m_weight.resize(count);
   m_dt_weights.resize(count);
-  m_x.resize(count);
+  m_x = rest_x;
   m_grad.resize(count);
   for (std::size_t h = 0; h < count; ++h) {
     const Hinge& v = m_hinges[h];
@@ -189,7 +189,6 @@ DihedralBending::DihedralBending(std::vector<Hinge> hinges, const Vectors3& rest
     // norm is exactly 2 k_b w sum_a |g_a|^2 / m_a: w_{e,a} = 2 k_b w |g_a|^2 (element_bound_stable_dt).
     for (std::size_t a = 0; a < 4; ++a) {
       m_dt_weights[h][a] = 2.0 * m_settings.stiffness * m_weight[h] * dot(k.grad[a], k.grad[a]);
-      m_x[h].col(static_cast<Index>(a)) = rest_x.col(v[a]);
       m_grad[h].col(static_cast<Index>(a)) = Vec3(k.grad[a].x, k.grad[a].y, k.grad[a].z);
     }
   }
@@ -208,17 +207,13 @@ void DihedralBending::validate(Index particle_count) const {
 void DihedralBending::update_position_state(const Vectors3& x) {
   // Without damping only the differential needs cached state, and it needs positions alone: skip the
   // angle gradients (an atan2 and two normalisations per hinge, every solve).
-  if (m_settings.damping == 0.0) {
-    for (std::size_t h = 0; h < m_hinges.size(); ++h)
-      for (std::size_t a = 0; a < 4; ++a) m_x[h].col(static_cast<Index>(a)) = x.col(m_hinges[h][a]);
-    return;
-  }
+  m_x = x;
+  if (m_settings.damping == 0.0) return;
   for (std::size_t h = 0; h < m_hinges.size(); ++h) {
     Vec<double> p[4];
     gather_hinge(x, m_hinges[h], p);
     const HingeKinematics<double> k = hinge_kinematics(p);
     for (std::size_t a = 0; a < 4; ++a) {
-      m_x[h].col(static_cast<Index>(a)) = x.col(m_hinges[h][a]);
       m_grad[h].col(static_cast<Index>(a)) = Vec3(k.grad[a].x, k.grad[a].y, k.grad[a].z);
     }
   }
@@ -254,9 +249,8 @@ void DihedralBending::add_elastic_differentials(const Vectors3& dx, Vectors3& df
   for (std::size_t h = 0; h < m_hinges.size(); ++h) {
     Vec<Dual> p[4];
     for (std::size_t a = 0; a < 4; ++a) {
-      const auto col = static_cast<Index>(a);
       const Index i = m_hinges[h][a];
-      p[a] = {Dual(m_x[h](0, col), dx(0, i)), Dual(m_x[h](1, col), dx(1, i)), Dual(m_x[h](2, col), dx(2, i))};
+      p[a] = {Dual(m_x(0, i), dx(0, i)), Dual(m_x(1, i), dx(1, i)), Dual(m_x(2, i), dx(2, i))};
     }
     const HingeKinematics<Dual> k = hinge_kinematics(p);
     const Dual delta = k.theta + (wrapped_difference(k.theta.v, m_rest_angle[h]) - k.theta.v);

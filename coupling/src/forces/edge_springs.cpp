@@ -18,6 +18,10 @@
 
 #include <algorithm>
 #include <cmath>
+
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
 #include <utility>
 
 namespace sinew {
@@ -58,6 +62,28 @@ EdgeSprings::EdgeSprings(std::vector<Edge> edges, const Vectors3& rest_x, const 
   }
   m_index_span = detail::index_span(m_edges);
   m_scatter = ScatterGather<2>(m_edges, m_index_span);
+  m_implicit_state.resize(edge_count, 4);
+  m_implicit_state.leftCols<3>() = m_direction.transpose();
+  m_implicit_state.col(3).setZero();
+  // One chunk below the parallel threshold (a sequential scatter, no buffers), else up to 8 chunks
+  // of at least kMinParallelItems / 2 edges (so 2 or 4 threads share them evenly).
+  const Index chunk_count = edge_count < parallel::kMinParallelItems
+                                ? 1
+                                : std::min<Index>(8, std::max<Index>(2, edge_count / (parallel::kMinParallelItems / 2)));
+  for (Index c = 0; c < chunk_count; ++c) {
+    Chunk chunk;
+    chunk.edge_begin = edge_count * c / chunk_count;
+    chunk.edge_end = edge_count * (c + 1) / chunk_count;
+    chunk.node_begin = m_index_span;
+    for (Index e = chunk.edge_begin; e < chunk.edge_end; ++e)
+      for (Index i : m_edges[static_cast<std::size_t>(e)]) {
+        chunk.node_begin = std::min(chunk.node_begin, i);
+        chunk.node_end = std::max(chunk.node_end, i + 1);
+      }
+    if (chunk.node_begin > chunk.node_end) chunk.node_begin = chunk.node_end;
+    m_chunks.push_back(chunk);
+  }
+  if (chunk_count > 1) m_chunk_f.assign(static_cast<std::size_t>(chunk_count), Vectors3::Zero(3, m_index_span));
 }
 
 void EdgeSprings::validate(Index particle_count) const {
@@ -72,6 +98,8 @@ void EdgeSprings::update_position_state(const Vectors3& x) {
       const double l = diff.norm();
       m_length[e] = l;
       m_direction.col(e) = diff / l;
+      for (int k = 0; k < 3; ++k) m_implicit_state(e, k) = m_direction(k, e);
+      m_implicit_state(e, 3) = std::max(0.0, 1.0 - m_rest_length[e] / l);
     }
   });
 }
@@ -134,23 +162,96 @@ void EdgeSprings::add_damping_forces(const Vectors3& v, Vectors3& f) const {
 }
 
 // f_i += [b_d d d^T + b k (d d^T + t+ (I - d d^T))] (v_j - v_i), f_j -= the same, t+ = max(0, 1 - l0/l).
+// The hot loop of the implicit solves (once per CG iteration): one pass over the edges' cached
+// (d, t+), scattering per chunk (see m_chunks).
 void EdgeSprings::add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
   const double bk = b * m_settings.stiffness;
   const double along_scale = m_settings.damping + bk;
   if (along_scale == 0.0) return;
-  if (bk == 0.0) {
-    scatter_gather(f, [&](Index e, const Edge& ij) -> Vec3 {
-      const Vec3 d = m_direction.col(e);
-      return (along_scale * d.dot(v.col(ij[1]) - v.col(ij[0]))) * d;
-    });
+  // Raw pointers: Eigen column accessors would reload the arrays' data pointers after every store.
+  const Edge* edges = m_edges.data();
+  const Index stride = m_implicit_state.rows();
+  const double* d0 = m_implicit_state.data();
+  const double* d1 = d0 + stride;
+  const double* d2 = d1 + stride;
+  const double* t = d2 + stride;
+  const double* pv = v.data();
+  // f_i = a d + bk t+ (dv - along d), a = (b_d + b k) along, along = d.dv, dv = v_j - v_i.
+  auto scatter = [&](const Chunk& chunk, double* out) {
+    Index e = chunk.edge_begin;
+#ifdef __SSE2__
+    // Two edges per register, the same IEEE operations in the same order as the scalar loop below
+    // (so the same bits); the scatter stays scalar and in edge order.
+    const __m128d scale = _mm_set1_pd(along_scale), stiff = _mm_set1_pd(bk);
+    auto pair = [&](const double* p, Index first, Index second) { return _mm_loadh_pd(_mm_load_sd(p + first), p + second); };
+    for (; e + 1 < chunk.edge_end; e += 2) {
+      const Index i0 = 3 * edges[e][0], j0 = 3 * edges[e][1];
+      const Index i1 = 3 * edges[e + 1][0], j1 = 3 * edges[e + 1][1];
+      const __m128d dv0 = _mm_sub_pd(pair(pv, j0, j1), pair(pv, i0, i1));
+      const __m128d dv1 = _mm_sub_pd(pair(pv + 1, j0, j1), pair(pv + 1, i0, i1));
+      const __m128d dv2 = _mm_sub_pd(pair(pv + 2, j0, j1), pair(pv + 2, i0, i1));
+      const __m128d s0 = _mm_loadu_pd(d0 + e), s1 = _mm_loadu_pd(d1 + e), s2 = _mm_loadu_pd(d2 + e);
+      const __m128d along = _mm_add_pd(_mm_add_pd(_mm_mul_pd(s0, dv0), _mm_mul_pd(s1, dv1)), _mm_mul_pd(s2, dv2));
+      const __m128d transverse = _mm_mul_pd(stiff, _mm_loadu_pd(t + e));
+      const __m128d a = _mm_mul_pd(scale, along);
+      const __m128d f0 = _mm_add_pd(_mm_mul_pd(a, s0), _mm_mul_pd(transverse, _mm_sub_pd(dv0, _mm_mul_pd(along, s0))));
+      const __m128d f1 = _mm_add_pd(_mm_mul_pd(a, s1), _mm_mul_pd(transverse, _mm_sub_pd(dv1, _mm_mul_pd(along, s1))));
+      const __m128d f2 = _mm_add_pd(_mm_mul_pd(a, s2), _mm_mul_pd(transverse, _mm_sub_pd(dv2, _mm_mul_pd(along, s2))));
+      double g[6];
+      _mm_storeu_pd(g, _mm_unpacklo_pd(f0, f1));      // edge e: f0, f1
+      _mm_storeu_pd(g + 2, _mm_shuffle_pd(f2, f0, 2));  // edge e: f2; edge e + 1: f0
+      _mm_storeu_pd(g + 4, _mm_unpackhi_pd(f1, f2));  // edge e + 1: f1, f2
+      out[i0] += g[0];
+      out[i0 + 1] += g[1];
+      out[i0 + 2] += g[2];
+      out[j0] -= g[0];
+      out[j0 + 1] -= g[1];
+      out[j0 + 2] -= g[2];
+      out[i1] += g[3];
+      out[i1 + 1] += g[4];
+      out[i1 + 2] += g[5];
+      out[j1] -= g[3];
+      out[j1 + 1] -= g[4];
+      out[j1 + 2] -= g[5];
+    }
+#endif
+    for (; e < chunk.edge_end; ++e) {
+      const Index i = 3 * edges[e][0], j = 3 * edges[e][1];
+      const double dv0 = pv[j] - pv[i], dv1 = pv[j + 1] - pv[i + 1], dv2 = pv[j + 2] - pv[i + 2];
+      const double along = (d0[e] * dv0 + d1[e] * dv1) + d2[e] * dv2;
+      const double transverse = bk * t[e];
+      const double a = along_scale * along;
+      const double f0 = a * d0[e] + transverse * (dv0 - along * d0[e]);
+      const double f1 = a * d1[e] + transverse * (dv1 - along * d1[e]);
+      const double f2 = a * d2[e] + transverse * (dv2 - along * d2[e]);
+      out[i] += f0;
+      out[i + 1] += f1;
+      out[i + 2] += f2;
+      out[j] -= f0;
+      out[j + 1] -= f1;
+      out[j + 2] -= f2;
+    }
+  };
+  if (m_chunks.size() == 1) {
+    scatter(m_chunks[0], f.data());
     return;
   }
-  scatter_gather(f, [&](Index e, const Edge& ij) -> Vec3 {
-    const Vec3 d = m_direction.col(e);
-    const Vec3 dv = v.col(ij[1]) - v.col(ij[0]);
-    const double along = d.dot(dv);
-    const double transverse = bk * std::max(0.0, 1.0 - m_rest_length[e] / m_length[e]);
-    return (along_scale * along) * d + transverse * (dv - along * d);
+  const auto chunk_count = static_cast<Index>(m_chunks.size());
+  parallel::for_ranges_when(true, chunk_count, [&](Index c0, Index c1) {
+    for (Index c = c0; c < c1; ++c) {
+      const Chunk& chunk = m_chunks[static_cast<std::size_t>(c)];
+      Vectors3& buffer = m_chunk_f[static_cast<std::size_t>(c)];
+      buffer.middleCols(chunk.node_begin, chunk.node_end - chunk.node_begin).setZero();
+      scatter(chunk, buffer.data());
+    }
+  });
+  double* pf = f.data();
+  parallel::for_ranges(m_index_span, [&](Index i0, Index i1) {
+    for (const Chunk& chunk : m_chunks) {
+      const double* pb = m_chunk_f[static_cast<std::size_t>(&chunk - m_chunks.data())].data();
+      const Index begin = 3 * std::max(i0, chunk.node_begin), end = 3 * std::min(i1, chunk.node_end);
+      for (Index k = begin; k < end; ++k) pf[k] += pb[k];
+    }
   });
 }
 
@@ -163,6 +264,23 @@ void EdgeSprings::add_implicit_diagonal(double b, VectorXd& diag) const {
     diag[m_edges[e][0]] += d;
     diag[m_edges[e][1]] += d;
   }
+}
+
+// Both ends' diagonal block is b_d d d^T + b k (d d^T + t+ (I - d d^T)), the edge's implicit
+// product matrix (the product's coupling block is its negative).
+bool EdgeSprings::add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const {
+  const double bk = b * m_settings.stiffness;
+  const double along_scale = m_settings.damping + bk;
+  if (along_scale == 0.0) return true;
+  for (std::size_t e = 0; e < m_edges.size(); ++e) {
+    const auto ei = static_cast<Index>(e);
+    const Vec3 d = m_direction.col(ei);
+    const double transverse = bk * m_implicit_state(ei, 3);
+    Mat3 block = (along_scale - transverse) * (d * d.transpose());
+    block.diagonal().array() += transverse;
+    for (Index i : m_edges[e]) blocks.col(i) += Eigen::Map<const Eigen::Matrix<double, 9, 1>>(block.data());
+  }
+  return true;
 }
 
 void EdgeSprings::add_damping_diagonal(VectorXd& diag) const {

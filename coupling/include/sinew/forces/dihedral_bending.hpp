@@ -66,7 +66,7 @@ class DihedralBending final : public Force {
   std::vector<Index> m_incidence_offsets;
   std::vector<Index> m_incidence;
   // Position state: hinge vertex positions (for the differential) and d theta / dx (for damping).
-  std::vector<Eigen::Matrix<double, 3, 4>> m_x;
+  Vectors3 m_x;  // positions of the cached state (a plain copy: cheaper than per-hinge stencils)
   mutable ScatterGather<4> m_scatter;  // per-hinge forces on its four nodes, gathered per node
   std::vector<Eigen::Matrix<double, 3, 4>> m_grad;
 };

@@ -35,6 +35,7 @@ class EdgeSprings final : public Force {
   bool has_definite_differentials() const override { return true; }
   void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
   void add_implicit_diagonal(double b, VectorXd& diag) const override;
+  bool add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const override;
   double stable_dt(const VectorXd& m_eff) const override;
 
   const std::vector<Edge>& edges() const { return m_edges; }
@@ -53,6 +54,21 @@ class EdgeSprings final : public Force {
   // Position state (update_position_state): unit direction x_j - x_i and length per edge.
   Vectors3 m_direction;
   VectorXd m_length;
+  // The implicit products' per-edge data, refreshed with the position state so a CG iteration
+  // divides nothing: columns 0-2 the unit direction d, column 3 the clamped transverse factor
+  // t+ = max(0, 1 - l0/l), each contiguous over the edges (two edges per SIMD register).
+  Eigen::Matrix<double, Eigen::Dynamic, 4> m_implicit_state;
+  // The products scatter each edge's f_i, -f_i straight into nodes, sequentially within fixed chunks
+  // of consecutive edges. A chunk count fixed by the edge count alone (never by the thread count)
+  // keeps the bits the same for any number of threads: with one chunk the scatter goes into f, with
+  // more each chunk adds into its own buffer over the node range its edges touch, and the buffers
+  // are added into f in chunk order.
+  struct Chunk {
+    Index edge_begin = 0, edge_end = 0;
+    Index node_begin = 0, node_end = 0;  // nodes touched by the chunk's edges
+  };
+  std::vector<Chunk> m_chunks;
+  mutable std::vector<Vectors3> m_chunk_f;  // per chunk (when more than one), 3 x node span
   mutable ScatterGather<2> m_scatter;  // per-edge end forces, gathered per node (deterministic threads)
 };
 
