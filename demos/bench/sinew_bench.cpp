@@ -162,11 +162,10 @@ struct Reference {
 Reference reference_for(const std::string& system) {
   Reference ref;
   if (system == "sinew") {
-    ref.setting = {system, 4, 1e-12, 0.225};  // a quarter of the default substep
-    ref.half = {system, 4, 1e-12, 0.45};
-  } else if (system == "sinew-implicit") {
-    ref.setting = {system, 64, 1e-12};
-    ref.half = {system, 32, 1e-12};
+    // A ninth of the default substep (the explicit elastic forces' stable step): both sinew settings are
+    // measured against it, since implicit elasticity converges to the same solution as the step shrinks.
+    ref.setting = {system, 4, 1e-12, 0.1};
+    ref.half = {system, 4, 1e-12, 0.2};
   } else if (system == "bullet-classic") {
     ref.setting = {system, 128};
     ref.half = {system, 64};
@@ -182,8 +181,10 @@ std::vector<Setting> sweep(const std::string& system) {
   if (system == "sinew") {
     for (double tol : {1e-5, 1e-7, 1e-9}) out.push_back({system, 4, tol});
   } else if (system == "sinew-implicit") {
-    for (int ticks : {1, 2, 4, 8, 16}) out.push_back({system, ticks, 1e-7});
-    out.push_back({system, 4, 1e-5});
+    // The tolerance barely moves the error here (1e-5 and 1e-7 m/s give the same figures): the
+    // linearised implicit elasticity's own first-order error dominates, so the sweep is over ticks.
+    for (int ticks : {1, 2, 4, 8, 16}) out.push_back({system, ticks, 1e-5});
+    out.push_back({system, 4, 1e-7});
   } else if (system == "bullet-classic") {
     for (int ticks : {1, 2, 4, 8, 16, 32}) out.push_back({system, ticks});
   } else {
@@ -323,6 +324,7 @@ Options parse(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) try {
+  std::setvbuf(stdout, nullptr, _IOLBF, 0);  // progress shows line by line when piped to a file
   const Options o = parse(argc, argv);
   std::filesystem::create_directories(o.out);
   const int frames = static_cast<int>(std::lround(o.seconds / kFrame));
@@ -358,6 +360,7 @@ int main(int argc, char** argv) try {
     std::printf("converged references (difference from a run at twice the step, at t = %.3g s):\n", frames * kFrame);
     for (const std::string& system : systems) {
       if (system == "bullet-deformable" && n > o.deformable_max) continue;
+      if (system == "sinew-implicit") continue;  // measured against sinew's reference
       Reference r = reference_for(system);
       r.run = simulate(r.setting, spec, o.threads, frames, {mid, frames});
       r.half_run = simulate(r.half, spec, o.threads, frames, {mid, frames});
@@ -385,8 +388,9 @@ int main(int argc, char** argv) try {
     std::printf("work-precision:\n  %-18s %-22s %10s %9s %9s %9s %9s %9s %9s %9s %9s %s\n", "system", "setting", "ms/sim-s", "ms/tick",
                 "rms@1s", "max@1s", "rms@2s", "max@2s", "bound[m]", "joint[m]", "dp_x", "");
     for (const std::string& system : systems) {
-      if (!ref.count(system)) continue;
-      const Reference& r = ref[system];
+      const std::string own = system == "sinew-implicit" ? "sinew" : system;
+      if (!ref.count(own)) continue;
+      const Reference& r = ref[own];
       for (const Setting& s : sweep(system)) {
         const Run run = simulate(s, spec, o.threads, frames, {mid, frames});
         Error2 e1, e2;
