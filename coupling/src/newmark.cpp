@@ -2,6 +2,8 @@
 
 #include "sinew/parallel.hpp"
 
+#include <Eigen/SVD>
+
 #include <algorithm>
 #include <chrono>
 #include <utility>
@@ -142,6 +144,7 @@ StepStats Newmark::step(System& s, double dt) {
   stats.substeps = 1;
   stats.dt = dt;
   save_state(s);
+  prepare_joints(s);
 
   auto t = Clock::now();
   implicit_half_velocity(s, dt, stats);
@@ -180,6 +183,10 @@ void Newmark::save_state(System& s) {
   m_x_n = s.m_particles.x;
   m_v_n = s.m_particles.v;
   auto& bodies = s.m_bodies;
+  for (Index b = 0; b < m_r; ++b)
+    if (!(bodies.force.col(b).allFinite() && bodies.torque.col(b).allFinite()))
+      fail("rigid body ", b, ": applied force (", bodies.force.col(b).transpose(), ") or torque (", bodies.torque.col(b).transpose(),
+           ") is not finite");
   m_body_x_n = bodies.x;
   m_body_v_n = bodies.v;
   m_body_w_n = bodies.w;
@@ -410,7 +417,11 @@ Vec3 Newmark::compute_forces(System& s, const Vectors3& x_springs, bool record_b
   for (Index i = 0; i < m_n; ++i)
     if (p.kind[i] == ParticleKind::free) m_f.col(i) += p.mass[i] * g;
   for (Index b = 0; b < m_r; ++b)
-    if (m_dynamic_body[b] && bodies.gravity[b]) m_wrench.col(b).head<3>() += bodies.mass[b] * g;
+    if (m_dynamic_body[b]) {
+      if (bodies.gravity[b]) m_wrench.col(b).head<3>() += bodies.mass[b] * g;
+      m_wrench.col(b).head<3>() += bodies.force.col(b);
+      m_wrench.col(b).tail<3>() += bodies.torque.col(b);
+    }
 
   // Parent accelerations a = M^-1 F (zero for kinematic parents, 1/inf = 0), read at the target.
   Vec3 mapped_total = Vec3::Zero();
@@ -611,16 +622,105 @@ void Newmark::project_constraints(GeneralizedVector& u) const {
     auto col = u.particles.col(c.particle);
     col -= c.normal.dot(col) * c.normal;
   }
+  for (const JointGroup& g : m_joint_groups) {
+    const Index k = static_cast<Index>(g.bodies.size());
+    auto u_g = m_joint_scratch.head(6 * k);
+    for (Index j = 0; j < k; ++j) u_g.segment<6>(6 * j) = u.rigid.col(g.bodies[j]);
+    u_g -= g.basis * (g.basis.transpose() * u_g);
+    for (Index j = 0; j < k; ++j) u.rigid.col(g.bodies[j]) = u_g.segment<6>(6 * j);
+  }
+}
+
+void Newmark::impose_joints(GeneralizedVector& u) const {
+  for (const JointGroup& g : m_joint_groups) {
+    const Index k = static_cast<Index>(g.bodies.size());
+    auto u_g = m_joint_scratch.head(6 * k);
+    for (Index j = 0; j < k; ++j) u_g.segment<6>(6 * j) = u.rigid.col(g.bodies[j]);
+    u_g += g.particular - g.basis * (g.basis.transpose() * u_g);
+    for (Index j = 0; j < k; ++j) u.rigid.col(g.bodies[j]) = u_g.segment<6>(6 * j);
+  }
+}
+
+// Joint rows J u = t on the dynamic bodies (kinematic bodies' twists moved to t). The CG then works
+// in the rows' null space, like the collision normals: P = I - Q Q^T with Q an orthonormal basis of
+// the rows (redundant rows, as two joints on one axis give, drop out by rank), and the joints'
+// reactions are the multipliers J^T lambda the projection removes.
+void Newmark::prepare_joints(const System& s) {
+  m_joint_groups.clear();
+  const auto& rows = s.m_joint_rows;
+  if (rows.empty()) return;
+  const auto& bodies = s.m_bodies;
+  std::vector<Index> root(static_cast<std::size_t>(m_r));
+  for (Index b = 0; b < m_r; ++b) root[b] = b;
+  auto find = [&](Index b) {
+    while (root[b] != b) b = root[b] = root[root[b]];
+    return b;
+  };
+  auto dynamic = [&](Index b) { return b >= 0 && m_dynamic_body[b]; };
+  for (const JointRow& row : rows)
+    if (dynamic(row.body_a) && dynamic(row.body_b)) {
+      const Index a = find(row.body_a), b = find(row.body_b);
+      if (a != b) root[std::max(a, b)] = std::min(a, b);
+    }
+  std::vector<Index> group_of(static_cast<std::size_t>(m_r), -1);
+  std::vector<std::vector<Index>> group_rows;
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const JointRow& row = rows[i];
+    const Index body = dynamic(row.body_a) ? row.body_a : dynamic(row.body_b) ? row.body_b : -1;
+    if (body < 0) continue;  // between prescribed bodies: nothing to solve
+    const Index r = find(body);
+    if (group_of[r] < 0) {
+      group_of[r] = static_cast<Index>(m_joint_groups.size());
+      m_joint_groups.emplace_back();
+      group_rows.emplace_back();
+    }
+    group_rows[group_of[r]].push_back(static_cast<Index>(i));
+  }
+  for (Index b = 0; b < m_r; ++b)
+    if (m_dynamic_body[b] && group_of[find(b)] >= 0) m_joint_groups[group_of[find(b)]].bodies.push_back(b);
+  Index largest = 0;
+  for (std::size_t g = 0; g < m_joint_groups.size(); ++g) {
+    JointGroup& group = m_joint_groups[g];
+    const Index k = static_cast<Index>(group.bodies.size());
+    largest = std::max(largest, k);
+    auto slot = [&](Index b) {
+      return static_cast<Index>(std::lower_bound(group.bodies.begin(), group.bodies.end(), b) - group.bodies.begin());
+    };
+    const Index m = static_cast<Index>(group_rows[g].size());
+    Eigen::MatrixXd J = Eigen::MatrixXd::Zero(m, 6 * k);
+    VectorXd t(m);
+    for (Index i = 0; i < m; ++i) {
+      const JointRow& row = rows[group_rows[g][i]];
+      t[i] = row.target;
+      for (const auto& [body, j] : {std::pair{row.body_a, row.j_a}, std::pair{row.body_b, row.j_b}}) {
+        if (body < 0) continue;
+        if (m_dynamic_body[body]) {
+          J.row(i).segment<6>(6 * slot(body)) += j.transpose();
+        } else {
+          t[i] -= j.head<3>().dot(bodies.v.col(body)) + j.tail<3>().dot(bodies.w.col(body));
+        }
+      }
+    }
+    const Eigen::JacobiSVD<Eigen::MatrixXd> svd(J, Eigen::ComputeThinU | Eigen::ComputeThinV);
+    const VectorXd& sigma = svd.singularValues();
+    Index rank = 0;
+    while (rank < sigma.size() && sigma[rank] > 1e-10 * sigma[0]) ++rank;
+    group.basis = svd.matrixV().leftCols(rank);
+    group.particular = group.basis * (svd.matrixU().leftCols(rank).transpose() * t).cwiseQuotient(sigma.head(rank));
+  }
+  m_joint_scratch.resize(6 * largest);
 }
 
 // Preconditioned conjugate gradients on the symmetric positive definite S = M + h W^T(D + beta K)W
 // (symmetric in the plain inner product; the paper's mass inner product form is the same iteration).
 // Constrained directions (kinematic rows and bodies, collision normals) keep their initial values.
 Newmark::SolveResult Newmark::solve(System& s, double h, double beta, double beta_el, bool linear_solve,
-                                    const GeneralizedVector* alternative) {
+                                    GeneralizedVector* alternative) {
   SolveResult result;
   const StepSettings& settings = s.m_step_settings;
   build_preconditioner(s, h, beta, beta_el, settings.jacobi_preconditioner && linear_solve);
+  impose_joints(m_y);
+  if (alternative) impose_joints(*alternative);
   apply(s, h, beta, beta_el, m_y, m_q);
   m_r_vec.particles = m_c.particles - m_q.particles;
   m_r_vec.rigid = m_c.rigid - m_q.rigid;

@@ -44,13 +44,18 @@ class Newmark {
   /// the initial guess (K, D negative semi-definite); with `alternative`, a second guess taken
   /// instead when its residual is below 1e-3 of the tolerance (exact: no iteration needed).
   SolveResult solve(System& s, double h, double beta, double beta_el, bool linear_solve,
-                    const GeneralizedVector* alternative = nullptr);
+                    GeneralizedVector* alternative = nullptr);
   void apply(System& s, double h, double beta, double beta_el, const GeneralizedVector& u, GeneralizedVector& out);
   void build_preconditioner(System& s, double h, double beta, double beta_el, bool jacobi);
   void precondition(const GeneralizedVector& r, GeneralizedVector& z) const;
   void project(GeneralizedVector& u) const;
   /// project() without the particle mask: for vectors already zero on rows without unknowns.
   void project_constraints(GeneralizedVector& u) const;
+  /// Groups the dynamic bodies that joint rows connect and factors each group's rows (SVD), once per
+  /// step: the orthonormal basis of the rows' span and the least-norm twists meeting the targets.
+  void prepare_joints(const System& s);
+  /// Sets the joint rows' components of the rigid twists in u to their targets (the rest is kept).
+  void impose_joints(GeneralizedVector& u) const;
   /// Copies each synchronized soft particle's target state into it (section 3.1).
   void synchronize(System& s, bool positions, bool velocities);
   /// Adds each synchronized soft row's force to its target row and clears the soft row.
@@ -82,6 +87,13 @@ class Newmark {
   GeneralizedVector m_c, m_y, m_r_vec, m_z, m_p, m_q;
   GeneralizedVector m_guess;  // step 1's second initial guess, M^-1 c
   std::vector<CollisionConstraint> m_constraints;
+  struct JointGroup {
+    std::vector<Index> bodies;  // ascending
+    Eigen::MatrixXd basis;      // 6k x rank, orthonormal, spanning the rows
+    VectorXd particular;        // 6k, in the span: the least-norm twists on the targets
+  };
+  std::vector<JointGroup> m_joint_groups;
+  mutable VectorXd m_joint_scratch;
   bool m_has_damping = false;
   bool m_implicit_elasticity = false;  // some elastic force enters the step-1 solve
 };

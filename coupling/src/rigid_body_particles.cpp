@@ -42,6 +42,10 @@ Index add_rigid_body(RigidBodyParticles& bodies, const RigidBodySettings& s) {
   bodies.w.conservativeResize(3, n);
   bodies.inertia.conservativeResize(3, n);
   bodies.mass.conservativeResize(n);
+  bodies.force.conservativeResize(3, n);
+  bodies.torque.conservativeResize(3, n);
+  bodies.force.col(b).setZero();
+  bodies.torque.col(b).setZero();
   bodies.x.col(b) = s.x;
   bodies.v.col(b) = s.v;
   bodies.w.col(b) = s.w;

@@ -171,6 +171,21 @@ Index System::add_binding_spring(const BindingSpringSettings& settings) {
   return m_springs.add(settings);
 }
 
+void System::set_joint_rows(std::vector<JointRow> rows) {
+  const Index r = m_bodies.size();
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const JointRow& row = rows[i];
+    if (row.body_a < 0 || row.body_a >= r) fail("joint row ", i, ": body_a = ", row.body_a, " is not a rigid body (there are ", r, ")");
+    if (row.body_b < -1 || row.body_b >= r)
+      fail("joint row ", i, ": body_b = ", row.body_b, " is neither -1 (the fixed world) nor a rigid body (there are ", r, ")");
+    if (row.body_a == row.body_b) fail("joint row ", i, ": both ends are rigid body ", row.body_a);
+    if (!(row.j_a.allFinite() && row.j_b.allFinite() && std::isfinite(row.target)))
+      fail("joint row ", i, ": Jacobian or target is not finite");
+    if (row.j_a.isZero(0.0) && row.j_b.isZero(0.0)) fail("joint row ", i, ": the Jacobian is zero");
+  }
+  m_joint_rows = std::move(rows);
+}
+
 void System::add_force_impl(std::unique_ptr<Force> force) {
   require_not_finalized("add a force");
   if (!force) fail("add_force: null force");

@@ -156,6 +156,7 @@ Index Coupling::attach(Index point, btRigidBody* body, const Vec3& local, double
 // changes in step 7 (gravity, contacts, constraints) are kept on top.
 StepStats Coupling::tick(double dt) {
   copy_state_in();
+  copy_joints_in(dt);
   m_last = m_system.advance(dt);  // substeps when the tick exceeds the elastic forces' stable step
   hand_over_position_velocity(dt);
   return m_last;
@@ -181,6 +182,12 @@ void Coupling::copy_state_in() {
     }
     bodies.v.col(b) = to_eigen(body->getLinearVelocity());
     bodies.w.col(b) = to_eigen(body->getAngularVelocity());
+    // Gravity and the application's forces, which Bullet gathered before this tick: the step carries
+    // them, so the deformables feel the body accelerate as it will.
+    if (!bodies.kinematic[b]) {
+      bodies.force.col(b) = to_eigen(body->getTotalForce());
+      bodies.torque.col(b) = to_eigen(body->getTotalTorque());
+    }
     m_x_in.col(b) = bodies.x.col(b);
     m_q_in[b] = bodies.q[b];
     m_v_in.col(b) = bodies.v.col(b);
@@ -203,11 +210,125 @@ void Coupling::hand_over_position_velocity(double dt) {
     // Impulses collisions gave the body during the step (applied to Bullet directly) stay with it.
     const Vec3 dv_collisions = to_eigen(body->getLinearVelocity()) - m_v_in.col(i);
     const Vec3 dw_collisions = to_eigen(body->getAngularVelocity()) - m_w_in.col(i);
-    body->setLinearVelocity(to_bullet(m_v_position.col(i) + dv_collisions));
-    body->setAngularVelocity(to_bullet(m_w_position.col(i) + dw_collisions));
+    hand_over(body, m_v_position.col(i) + dv_collisions, m_w_position.col(i) + dw_collisions, dt);
     body->activate(true);
   }
   m_handed_over = true;
+}
+
+// A coupled body moves in the step as if free unless the step knows its joints, and Bullet's solver
+// then pulls it back onto them after the deformables have moved: a stiff binding spring on such a body
+// would meet its end displaced by about (joint reaction / m) dt^2. So the equality rows of every
+// enabled joint that touches a coupled body are read from Bullet (the Jacobians its own solver gets
+// from getInfo2, at the tick's start) and held by both solves of the step. Limit and motor rows,
+// which Bullet bounds, and soft rows (cfm > 0) stay Bullet's alone; so does Baumgarte's position
+// correction (the rows keep the joint's relative velocity at zero). Bodies outside the coupling
+// count as moving with their velocities at the tick's start.
+void Coupling::copy_joints_in(double dt) {
+  m_joint_rows.clear();
+  auto index_of = [&](const btRigidBody* body) -> Index {
+    for (std::size_t b = 0; b < m_bodies.size(); ++b)
+      if (m_bodies[b] == body) return static_cast<Index>(b);
+    return -1;
+  };
+  const RigidBodyParticles& bodies = m_system.rigid_bodies();
+  for (int c = 0; c < m_world->getNumConstraints(); ++c) {
+    btTypedConstraint* joint = m_world->getConstraint(c);
+    if (!joint->isEnabled()) continue;
+    const btRigidBody& body_a = joint->getRigidBodyA();
+    const btRigidBody& body_b = joint->getRigidBodyB();
+    const Index a = index_of(&body_a), b = index_of(&body_b);
+    if ((a < 0 || bodies.kinematic[a]) && (b < 0 || bodies.kinematic[b])) continue;
+    btTypedConstraint::btConstraintInfo1 info1;
+    joint->getInfo1(&info1);
+    const int rows = info1.m_numConstraintRows;
+    if (rows <= 0) continue;
+    // Eight arrays: J1 linear, J1 angular, J2 linear, J2 angular, error, cfm, lower and upper limits.
+    // Bullet's solver points them into its row structs, so every one of them strides by rowskip.
+    constexpr int skip = 3;
+    m_joint_buffer.assign(static_cast<std::size_t>(8 * skip * rows), btScalar(0));
+    btScalar* array[8];
+    for (int k = 0; k < 8; ++k) array[k] = m_joint_buffer.data() + k * skip * rows;
+    btTypedConstraint::btConstraintInfo2 info2;
+    info2.fps = btScalar(1.0 / dt);
+    info2.erp = m_world->getSolverInfo().m_erp;
+    info2.m_J1linearAxis = array[0];
+    info2.m_J1angularAxis = array[1];
+    info2.m_J2linearAxis = array[2];
+    info2.m_J2angularAxis = array[3];
+    info2.rowskip = skip;
+    info2.m_constraintError = array[4];
+    info2.cfm = array[5];
+    info2.m_lowerLimit = array[6];
+    info2.m_upperLimit = array[7];
+    for (int r = 0; r < rows; ++r) {
+      info2.cfm[skip * r] = m_world->getSolverInfo().m_globalCfm;
+      info2.m_lowerLimit[skip * r] = -SIMD_INFINITY;
+      info2.m_upperLimit[skip * r] = SIMD_INFINITY;
+    }
+    info2.m_numIterations = m_world->getSolverInfo().m_numIterations;
+    info2.m_damping = m_world->getSolverInfo().m_damping;
+    joint->getInfo2(&info2);
+    const Vec6 twist_a = (Vec6() << to_eigen(body_a.getLinearVelocity()), to_eigen(body_a.getAngularVelocity())).finished();
+    const Vec6 twist_b = (Vec6() << to_eigen(body_b.getLinearVelocity()), to_eigen(body_b.getAngularVelocity())).finished();
+    for (int r = 0; r < rows; ++r) {
+      if (info2.m_lowerLimit[skip * r] > -SIMD_INFINITY || info2.m_upperLimit[skip * r] < SIMD_INFINITY || info2.cfm[skip * r] > btScalar(0))
+        continue;
+      Vec6 j_a, j_b;
+      for (int d = 0; d < 3; ++d) {
+        j_a[d] = info2.m_J1linearAxis[skip * r + d];
+        j_a[3 + d] = info2.m_J1angularAxis[skip * r + d];
+        j_b[d] = info2.m_J2linearAxis[skip * r + d];
+        j_b[3 + d] = info2.m_J2angularAxis[skip * r + d];
+      }
+      JointRow row;
+      // A body outside the coupling keeps its velocity: its part of the row moves to the target.
+      if (a >= 0) {
+        row.body_a = a;
+        row.j_a = j_a;
+      } else {
+        row.target -= j_a.dot(twist_a);
+      }
+      if (b >= 0) {
+        (a >= 0 ? row.body_b : row.body_a) = b;
+        (a >= 0 ? row.j_b : row.j_a) = j_b;
+      } else {
+        row.target -= j_b.dot(twist_b);
+      }
+      if (row.j_a.isZero(0.0) && row.j_b.isZero(0.0)) continue;
+      m_joint_rows.push_back(row);
+    }
+  }
+  m_system.set_joint_rows(m_joint_rows);
+}
+
+// Bullet's solver adds the body's external impulse (total force and torque, which the Newmark step
+// has already integrated) and, with the gyroscopic flags, its own gyroscopic change of w (the step's
+// rotation already has one) before it solves the joints and moves the body. Those are subtracted here,
+// so that a body no joint or contact touches moves exactly along the step's position update; a stiff
+// binding spring on it then meets its end where the step left it. The gyroscopic change depends on
+// the w handed over, hence the fixed-point iteration (it contracts by about dt |w| per pass).
+void Coupling::hand_over(btRigidBody* body, const Vec3& v, const Vec3& w, double dt) {
+  const btScalar h = btScalar(dt);
+  const btVector3 dv = body->getTotalForce() * (body->getInvMass() * h);
+  const btVector3 dw_torque = body->getInvInertiaTensorWorld() * body->getTotalTorque() * h;
+  body->setLinearVelocity(to_bullet(v) - dv);
+  const int flags = body->getFlags();
+  const int gyroscopic = BT_ENABLE_GYROSCOPIC_FORCE_EXPLICIT | BT_ENABLE_GYROSCOPIC_FORCE_IMPLICIT_WORLD |
+                         BT_ENABLE_GYROSCOPIC_FORCE_IMPLICIT_BODY;
+  btVector3 handed = to_bullet(w) - dw_torque;
+  body->setAngularVelocity(handed);
+  if (!(flags & gyroscopic)) return;
+  const btScalar max_gyroscopic = m_world->getSolverInfo().m_maxGyroscopicForce;
+  for (int pass = 0; pass < 4; ++pass) {
+    btVector3 dw_gyro(0, 0, 0);
+    if (flags & BT_ENABLE_GYROSCOPIC_FORCE_EXPLICIT)
+      dw_gyro -= body->getInvInertiaTensorWorld() * body->computeGyroscopicForceExplicit(max_gyroscopic) * h;
+    if (flags & BT_ENABLE_GYROSCOPIC_FORCE_IMPLICIT_WORLD) dw_gyro += body->computeGyroscopicImpulseImplicit_World(h);
+    if (flags & BT_ENABLE_GYROSCOPIC_FORCE_IMPLICIT_BODY) dw_gyro += body->computeGyroscopicImpulseImplicit_Body(h);
+    handed = to_bullet(w) - dw_torque - dw_gyro;
+    body->setAngularVelocity(handed);
+  }
 }
 
 void Coupling::take_back_momentum() {

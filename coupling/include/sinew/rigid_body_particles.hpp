@@ -29,6 +29,11 @@ struct RigidBodyParticles {
   Vectors3 inertia;           ///< principal moments I0 (3 x R); +inf for kinematic bodies
   std::vector<std::uint8_t> kinematic;
   std::vector<std::uint8_t> gravity;
+  /// Applied force and torque about the centre of mass, world (3 x R) [N], [N m], held constant over
+  /// a step and added to the body's wrench with gravity (a rigid solver's own forces on the body, so
+  /// that the step moves the body the way that solver will).
+  Vectors3 force;
+  Vectors3 torque;
 
   Index size() const { return static_cast<Index>(q.size()); }
 

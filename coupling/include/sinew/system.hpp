@@ -81,6 +81,20 @@ struct CollisionConstraint {
   double normal_velocity = 0.0;
 };
 
+/// One row of a joint between rigid-body particles (a rigid solver's bilateral constraint, for
+/// instance a slider's): J_a . (v_a, w_a) + J_b . (v_b, w_b) = target, with v the centre-of-mass
+/// velocity and w the angular velocity, both world, and body_b = -1 for a joint to the fixed world.
+/// Both solves of the step keep the dynamic bodies' twists on these rows (projected CG, like the
+/// collision normals), so that the bodies move in the step as the joints will let them.
+/// Rows on kinematic bodies use their prescribed twists.
+struct JointRow {
+  Index body_a = -1;
+  Vec6 j_a = Vec6::Zero();
+  Index body_b = -1;
+  Vec6 j_b = Vec6::Zero();
+  double target = 0.0;  ///< [m/s]
+};
+
 /// What the step-3 collision hook sees and may change: (x~^{n+1}, v^n) -> (x^{n+1}, v~^n).
 /// Only free and soft-bound rows may be changed; hard-bound rows are recomputed from their
 /// parents afterwards and kinematic rows are prescribed.
@@ -144,6 +158,10 @@ class System {
     return ref;
   }
   void set_collision_hook(CollisionHook hook) { m_collision_hook = std::move(hook); }
+  /// Replaces the joint rows between rigid-body particles (see JointRow); they hold until replaced,
+  /// so a caller whose joints turn with the bodies sets them before every step. Validated here.
+  void set_joint_rows(std::vector<JointRow> rows);
+  const std::vector<JointRow>& joint_rows() const { return m_joint_rows; }
   StepSettings& step_settings() { return m_step_settings; }
   const SystemSettings& settings() const { return m_settings; }
 
@@ -211,6 +229,7 @@ class System {
 
   SystemSettings m_settings;
   StepSettings m_step_settings;
+  std::vector<JointRow> m_joint_rows;
   Particles m_particles;
   VectorXd m_input_mass;
   RigidBodyParticles m_bodies;

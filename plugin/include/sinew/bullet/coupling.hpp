@@ -79,8 +79,12 @@ class Coupling {
   /// After Bullet's integration: bound rows move onto the bodies' new frames (they are W of them).
   void follow_bodies();
   void copy_state_in();
+  /// The equality rows of Bullet's joints on coupled bodies, for the step's solves (JointRow).
+  void copy_joints_in(double dt);
   /// Step 6, first half: Bullet's bodies get the velocity that moves them along the Newmark step.
   void hand_over_position_velocity(double dt);
+  /// Sets the velocities that Bullet's solver turns into (v, w) before joints and contacts act.
+  void hand_over(btRigidBody* body, const Vec3& v, const Vec3& w, double dt);
   /// Step 6, second half (post-tick): they end the tick with the Newmark velocity plus Bullet's changes.
   void take_back_momentum();
 
@@ -90,6 +94,8 @@ class Coupling {
   // Per body: state copied in, the Newmark end-of-step twist and the position twist handed to Bullet.
   Vectors3 m_x_in, m_v_in, m_w_in, m_v_next, m_w_next, m_v_position, m_w_position;
   std::vector<Quat> m_q_in;
+  std::vector<JointRow> m_joint_rows;
+  std::vector<btScalar> m_joint_buffer;  // Bullet's btConstraintInfo2 arrays for one joint
   bool m_handed_over = false;
   void (*m_app_pre_tick)(btDynamicsWorld*, btScalar) = nullptr;
   void (*m_app_post_tick)(btDynamicsWorld*, btScalar) = nullptr;
