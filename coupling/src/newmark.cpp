@@ -231,7 +231,7 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   stats.ms.forces += ms_since(t);
 
   t = Clock::now();
-  const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity;
+  const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity || !m_joint_groups.empty();
   const SolveResult result = solve(s, h, h, m_implicit_elasticity ? h : 0.0, linear_solve, &m_guess);
   stats.ms.cg += ms_since(t);
   stats.linear_solve = linear_solve;
@@ -352,7 +352,7 @@ void Newmark::backward_euler_velocity(System& s, double dt, StepStats& stats) {
 
   t = Clock::now();
   const double beta = mode == BindingSpringStep4::implicit_half_step ? h : 0.0;
-  const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity;
+  const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity || !m_joint_groups.empty();
   const SolveResult result = solve(s, h, beta, m_implicit_elasticity ? h : 0.0, linear_solve);
   stats.ms.cg += ms_since(t);
   stats.cg_iterations_step4 += result.iterations;
@@ -379,6 +379,15 @@ void Newmark::extrapolate_velocity(System& s) {
     const Vec3 L = 2.0 * L_half - m_body_L_n.col(b);
     bodies.v.col(b) = 2.0 * m_y.rigid.col(b).head<3>() - bodies.v.col(b);
     bodies.w.col(b) = bodies.world_inverse_inertia(b) * L;
+  }
+  if (!m_joint_groups.empty()) {
+    // The joints hold at the end of the step too: extrapolation through v^{n+1/2} would otherwise
+    // reflect a violation present at t^n (-err at t^{n+1}, +err at t^{n+2}, ...) instead of removing it.
+    m_y.rigid.topRows<3>() = bodies.v;
+    m_y.rigid.bottomRows<3>() = bodies.w;
+    impose_joints(m_y);
+    bodies.v = m_y.rigid.topRows<3>();
+    bodies.w = m_y.rigid.bottomRows<3>();
   }
   s.m_hard.update_rigid_offsets(bodies);
   s.m_hard.clamp_velocities(p.v, bodies.v, bodies.w);

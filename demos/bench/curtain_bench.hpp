@@ -110,6 +110,8 @@ class CurtainRun {
   virtual double momentum_along_rod() const = 0;
   /// Kinetic + gravitational (+ elastic where the model has one) energy of cloth and rings [J].
   virtual double energy() const = 0;
+  /// The part of energy() stored in binding springs [J] (sinew's spring case; 0 elsewhere).
+  virtual double binding_spring_energy() const { return 0.0; }
   /// False once any position or velocity is non-finite or a node is more than 1 km away.
   virtual bool healthy() const = 0;
   /// Where the models cannot match the spec (empty when they match), for the benchmark's output.

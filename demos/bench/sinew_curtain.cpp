@@ -115,6 +115,11 @@ class SinewCurtain final : public SinewCurtainRun {
     return e;
   }
 
+  double binding_spring_energy() const override {
+    const System& s = m_coupling->system();
+    return s.binding_springs().potential_energy(s.particles().x);
+  }
+
   bool healthy() const override {
     const System& s = m_coupling->system();
     for (Index node : m_cloth.nodes) {
