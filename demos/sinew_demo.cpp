@@ -1,9 +1,14 @@
 // sinew-demo <scene>: runs one of the Bullet demo scenes headless and prints a one-line JSON summary.
 //
 //   sinew-demo curtain|net|plates|hello [--frames N] [--dt SECONDS] [--substeps N] [--out DIR]
+//              [--render DIR] [--video FILE] [--size WxH] [--no-springs] [--no-hard] [--no-soft] [--parents]
 //
 // --out DIR writes DIR/frame_0001.obj, ... : the deformable surfaces and every rigid body's shape.
+// --render DIR writes DIR/frame_0001.png, ... : pictures rendered offscreen (OSMesa), with the binding
+// overlays (springs orange, hard-bound points red, soft-bound yellow, parents blue) the flags select.
+// --video FILE assembles the frames into an MP4 or, for a .gif name, a GIF with ffmpeg.
 #include "bullet_scenes.hpp"
+#include "renderer.hpp"
 #include "sinew/mesh/mesh_io.hpp"
 
 #include <algorithm>
@@ -12,12 +17,18 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <memory>
 #include <string>
+
+#include <unistd.h>
 
 namespace {
 
 [[noreturn]] void usage(const char* problem) {
-  std::fprintf(stderr, "sinew-demo: %s\nusage: sinew-demo curtain|net|plates|hello [--frames N] [--dt SECONDS] [--substeps N] [--out DIR]\n", problem);
+  std::fprintf(stderr,
+               "sinew-demo: %s\nusage: sinew-demo curtain|net|plates|hello [--frames N] [--dt SECONDS] [--substeps N] [--out DIR]\n"
+               "                  [--render DIR] [--video FILE] [--size WxH] [--no-springs] [--no-hard] [--no-soft] [--parents]\n",
+               problem);
   std::exit(2);
 }
 
@@ -28,7 +39,9 @@ int main(int argc, char** argv) {
   const std::string scene_name = argv[1];
   int frames = 240, substeps = 0;  // 0: the scene's own
   double dt = 1.0 / 60.0;
-  std::string out;
+  std::string out, render_dir, video;
+  int width = 960, height = 540;
+  sinew::render::Overlays overlays;
   for (int i = 2; i < argc; ++i) {
     auto value = [&]() -> const char* {
       if (i + 1 >= argc) usage("a flag needs a value");
@@ -38,6 +51,16 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--dt")) dt = std::atof(value());
     else if (!std::strcmp(argv[i], "--substeps")) substeps = std::atoi(value());
     else if (!std::strcmp(argv[i], "--out")) out = value();
+    else if (!std::strcmp(argv[i], "--render")) render_dir = value();
+    else if (!std::strcmp(argv[i], "--video")) video = value();
+    else if (!std::strcmp(argv[i], "--size")) {
+      if (std::sscanf(value(), "%dx%d", &width, &height) != 2 || width < 16 || height < 16 || width > 8192 || height > 8192)
+        usage("--size takes WxH, each 16 to 8192 pixels");
+    }
+    else if (!std::strcmp(argv[i], "--no-springs")) overlays.binding_springs = false;
+    else if (!std::strcmp(argv[i], "--no-hard")) overlays.hard_bound = false;
+    else if (!std::strcmp(argv[i], "--no-soft")) overlays.soft_bound = false;
+    else if (!std::strcmp(argv[i], "--parents")) overlays.parents = true;
     else usage("unknown flag");
   }
   if (frames < 1 || substeps < 0 || !(dt > 0)) usage("--frames, --substeps and --dt must be positive");
@@ -46,6 +69,18 @@ int main(int argc, char** argv) {
     if (substeps == 0) substeps = scene->default_substeps();
     double drift = 0.0, stretch = 0.0, penetration = 0.0, wall_ms = 0.0, energy_start = 0.0;
     bool first = true;
+    // Pictures: frames go to --render's directory, or to a temporary one that only --video needs.
+    std::filesystem::path frames_dir = render_dir;
+    const bool temporary_frames = render_dir.empty() && !video.empty();
+    if (temporary_frames)
+      frames_dir = std::filesystem::temp_directory_path() / ("sinew-demo-frames-" + std::to_string(::getpid()));
+    std::unique_ptr<sinew::render::Offscreen> offscreen;
+    sinew::render::Camera camera;
+    if (!frames_dir.empty()) {
+      std::filesystem::create_directories(frames_dir);
+      offscreen = std::make_unique<sinew::render::Offscreen>(width, height);
+      camera = sinew::render::framing_camera(sinew::render::picture_of(*scene, overlays), double(width) / height);
+    }
     for (int f = 0; f < frames; ++f) {
       const auto start = std::chrono::steady_clock::now();
       scene->advance(dt, substeps);
@@ -69,6 +104,18 @@ int main(int argc, char** argv) {
         }
         sinew::mesh::save_triangle_meshes((std::filesystem::path(out) / file).string(), meshes, names);
       }
+      if (offscreen) {
+        const sinew::render::Picture picture = sinew::render::picture_of(*scene, overlays);
+        sinew::render::follow(camera, picture);
+        sinew::render::draw(picture, camera, width, height);
+        char file[64];
+        std::snprintf(file, sizeof file, "frame_%04d.png", f + 1);
+        sinew::render::write_png((frames_dir / file).string(), width, height, offscreen->pixels());
+      }
+    }
+    if (!video.empty()) {
+      sinew::render::encode_video(frames_dir.string(), 1.0 / dt, video);
+      if (temporary_frames) std::filesystem::remove_all(frames_dir);
     }
     const double energy_end = scene->total_energy();
     std::printf(

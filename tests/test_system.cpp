@@ -332,6 +332,32 @@ TEST(System, RemovingBindingsAtRunTimeReleasesTheCloth) {
 
 // The force a binding carries: a 0.3 kg particle hanging at rest below a point hard-bound to a fixed
 // body (through an edge spring) or below a fixed anchor (through a binding spring) pulls with m g.
+// The viewer's mouse spring: one binding spring, made inactive before the first step, later moved to
+// whichever particle is grabbed and a kinematic cursor particle. Moved to a resting free particle and a
+// cursor 0.1 m above it, it lifts the particle (zero gravity: the spring alone acts), the pull is
+// -k (x - x_cursor) on the grabbed end, and its damping is recomputed for the new ends (the critical
+// value for the grabbed particle against the infinite-mass cursor).
+TEST(System, ABindingSpringMovedToNewEndsPullsThem) {
+  System s(kNoGravity);
+  const Index first = s.add_particle(Vec3::Zero(), Vec3::Zero(), 0.1);
+  const Index grabbed = s.add_particle(Vec3(1, 0, 0), Vec3::Zero(), 0.4);
+  const Index cursor = s.add_kinematic_particle(Vec3(1, 0.1, 0));
+  const Index spring = s.add_binding_spring({first, cursor, 50.0, 1.0});
+  s.set_binding_spring_active(spring, false);
+  s.step(0.01);
+  EXPECT_EQ(s.particles().x.col(grabbed), Vec3(1, 0, 0)) << "an inactive spring pulled";
+  s.set_binding_spring_ends(spring, grabbed, cursor);
+  s.set_binding_spring_active(spring, true);
+  EXPECT_LT((s.binding_spring_force(spring) - Vec3(0, 50.0 * 0.1, 0)).norm(), 1e-12);
+  for (int i = 0; i < 200; ++i) s.step(0.01);
+  // Critically damped (zeta = 1 against the infinite cursor mass): settles on the cursor within 2 s.
+  EXPECT_LT((s.particles().x.col(grabbed) - Vec3(1, 0.1, 0)).norm(), 1e-4);
+  EXPECT_EQ(s.particles().x.col(first), Vec3::Zero()) << "the old end still pulled";
+  EXPECT_THROW(s.set_binding_spring_ends(spring, grabbed, grabbed), Error);
+  EXPECT_THROW(s.set_binding_spring_ends(spring, grabbed, 99), Error);
+  EXPECT_THROW(s.set_binding_spring_ends(7, grabbed, cursor), Error);
+}
+
 TEST(System, BindingsReportTheForceTheyCarry) {
   System s(SystemSettings{Vec3(0, -9.81, 0), false});
   RigidBodySettings hook;

@@ -171,6 +171,15 @@ Index System::add_binding_spring(const BindingSpringSettings& settings) {
   return m_springs.add(settings);
 }
 
+void System::set_binding_spring_ends(Index spring, Index a, Index b) {
+  if (spring < 0 || spring >= m_springs.size()) fail("binding spring ", spring, " does not exist (there are ", m_springs.size(), ")");
+  const Index n = m_particles.size();
+  if (a < 0 || a >= n || b < 0 || b >= n) fail("binding spring ", spring, ": ends ", a, " and ", b, " must be particles (0 to ", n - 1, ")");
+  if (a == b) fail("binding spring ", spring, ": both ends are particle ", a);
+  m_springs.set_ends(spring, a, b);
+  if (m_finalized) m_springs.set_damping_from_masses(m_inverse_effective_mass);
+}
+
 void System::set_joint_rows(std::vector<JointRow> rows) {
   const Index r = m_bodies.size();
   for (std::size_t i = 0; i < rows.size(); ++i) {

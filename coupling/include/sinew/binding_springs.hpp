@@ -40,6 +40,7 @@ class BindingSprings {
   /// Switches a spring off (it then exerts nothing) or back on.
   void set_active(Index s, bool active) { m_k_active[s] = active ? m_k[s] : 0.0, m_c_active[s] = active ? m_c[s] : 0.0, m_active[s] = active; }
   bool active(Index s) const { return m_active[s]; }
+  void set_ends(Index s, Index a, Index b) { m_a[s] = a, m_b[s] = b; }
   /// The force on end a, -k (x_a - x_b) - c (v_a - v_b); end b carries its opposite.
   Vec3 force(Index s, const Vectors3& x, const Vectors3& v) const {
     return -m_k_active[s] * (x.col(m_a[s]) - x.col(m_b[s])) - m_c_active[s] * (v.col(m_a[s]) - v.col(m_b[s]));

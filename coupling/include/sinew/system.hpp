@@ -147,6 +147,9 @@ class System {
   /// A zero-rest-length binding spring between any two points (e.g. hard-bound points on two rigid
   /// bodies: a point joint, figure 13).
   Index add_binding_spring(const BindingSpringSettings& settings);
+  /// Moves a binding spring's ends to particles a and b, at any time (a viewer's mouse spring moves to
+  /// whatever point is grabbed); its damping is recomputed from the new ends' effective masses.
+  void set_binding_spring_ends(Index spring, Index a, Index b);
   /// Switches a binding spring off (it then exerts nothing) or back on, at any time.
   void set_binding_spring_active(Index spring, bool active);
   /// The force binding spring `spring` exerts on its first end now (the second end carries its opposite).
