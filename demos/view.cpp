@@ -50,13 +50,6 @@ struct Session {
   }
 };
 
-Vec3 unproject(const render::Camera& camera, double x, double y, double depth, int width, int height) {
-  const render::Mat4 inverse = (camera.projection(double(width) / height) * camera.view()).inverse();
-  const Eigen::Vector4d ndc(2.0 * x / width - 1.0, 1.0 - 2.0 * y / height, depth, 1.0);
-  const Eigen::Vector4d world = inverse * ndc;
-  return world.head<3>() / world.w();
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -128,17 +121,7 @@ int main(int argc, char** argv) {
       const double mx = io.MousePos.x * scale, my = io.MousePos.y * scale;
       if (!io.WantCaptureMouse) {
         if (io.MouseClicked[0] && session->spring >= 0) {
-          double best = 15.0 * scale;  // pixels
-          for (Index i = 0; i < s.particles().size(); ++i) {
-            if (s.particles().kind[i] != ParticleKind::free) continue;
-            const Vec3 p = camera.project(s.particles().x.col(i), fb_width, fb_height);
-            const double d = std::hypot(p.x() - mx, p.y() - my);
-            if (d < best && p.z() > -1.0 && p.z() < 1.0) {
-              best = d;
-              session->grabbed = i;
-              session->grab_depth = p.z();
-            }
-          }
+          session->grabbed = render::pick_particle(s, camera, mx, my, 15.0 * scale, fb_width, fb_height, &session->grab_depth);
           if (session->grabbed >= 0) {
             s.particles().x.col(session->cursor) = s.particles().x.col(session->grabbed);
             s.particles().v.col(session->cursor).setZero();
@@ -164,7 +147,7 @@ int main(int argc, char** argv) {
       }
       if (session->grabbed >= 0) {
         // The cursor particle moves to the mouse at the grabbed depth, with the velocity that gets it there.
-        const Vec3 target = unproject(camera, mx, my, session->grab_depth, fb_width, fb_height);
+        const Vec3 target = camera.unproject(mx, my, session->grab_depth, fb_width, fb_height);
         s.particles().v.col(session->cursor) = (target - s.particles().x.col(session->cursor)) / frame_dt;
       }
 

@@ -111,6 +111,40 @@ TEST(RenderCamera, ProjectsTheTargetToTheCentre) {
   EXPECT_LT(camera.project(camera.target + Vec3(0, 0, 1), 200, 100).z(), centre.z());
 }
 
+TEST(RenderCamera, UnprojectInvertsProject) {
+  render::Camera camera;
+  camera.target = Vec3(0.3, 1.0, -0.2);
+  camera.distance = 3.0;
+  for (const Vec3& p : {Vec3(0, 0, 0), Vec3(1, 2, 0.5), Vec3(-0.4, 0.9, 0.1)}) {
+    const Vec3 q = camera.project(p, 640, 480);
+    EXPECT_LT((camera.unproject(q.x(), q.y(), q.z(), 640, 480) - p).norm(), 1e-9);
+  }
+}
+
+// The viewer's grab: the free particle drawn nearest the cursor, the front one of two on the same
+// line of sight, none beyond the radius, never a kinematic one.
+TEST(RenderPick, PicksTheNearestFreeParticleInFront) {
+  System s;
+  render::Camera camera;
+  camera.yaw = 0.0;
+  camera.pitch = 0.0;
+  camera.distance = 5.0;  // eye at (0, 0, 5) looking down -z
+  const Index back = s.add_particle(Vec3(0, 0, -1), Vec3::Zero(), 1.0);
+  const Index front = s.add_particle(Vec3(0, 0, 1), Vec3::Zero(), 1.0);
+  const Index aside = s.add_particle(Vec3(0.5, 0, 0), Vec3::Zero(), 1.0);
+  s.add_kinematic_particle(Vec3(0, 0.2, 2));
+  const int w = 400, h = 300;
+  double depth = 0.0;
+  EXPECT_EQ(render::pick_particle(s, camera, 200, 150, 10, w, h, &depth), front);
+  EXPECT_NEAR(depth, camera.project(Vec3(0, 0, 1), w, h).z(), 1e-12);
+  const Vec3 at_aside = camera.project(Vec3(0.5, 0, 0), w, h);
+  EXPECT_EQ(render::pick_particle(s, camera, at_aside.x() + 3, at_aside.y() - 2, 10, w, h), aside);
+  EXPECT_EQ(render::pick_particle(s, camera, at_aside.x() + 30, at_aside.y(), 10, w, h), -1);
+  const Vec3 at_kinematic = camera.project(Vec3(0, 0.2, 2), w, h);
+  EXPECT_NE(render::pick_particle(s, camera, at_kinematic.x(), at_kinematic.y(), 3, w, h), 3) << "picked the kinematic cursor";
+  (void)back;
+}
+
 TEST(RenderFiles, BadSizesAndPathsAreNamed) {
   EXPECT_THROW(render::Offscreen(0, 10), Error);
   std::vector<std::uint8_t> pixels(4 * 4 * 4, 255);

@@ -241,6 +241,32 @@ Vec3 Camera::project(const Vec3& point, int width, int height) const {
   return Vec3(0.5 * (ndc.x() + 1.0) * width, 0.5 * (1.0 - ndc.y()) * height, ndc.z());
 }
 
+Vec3 Camera::unproject(double x, double y, double depth, int width, int height) const {
+  const Mat4 inverse = (projection(double(width) / height) * view()).inverse();
+  const Eigen::Vector4d world = inverse * Eigen::Vector4d(2.0 * x / width - 1.0, 1.0 - 2.0 * y / height, depth, 1.0);
+  return world.head<3>() / world.w();
+}
+
+Index pick_particle(const System& system, const Camera& camera, double x, double y, double radius, int width, int height, double* depth) {
+  Index best = -1;
+  double best_distance = radius, best_depth = 2.0;
+  const Particles& p = system.particles();
+  for (Index i = 0; i < p.size(); ++i) {
+    if (p.kind[i] != ParticleKind::free) continue;
+    const Vec3 q = camera.project(p.x.col(i), width, height);
+    if (!(q.z() > -1.0 && q.z() < 1.0)) continue;  // behind the eye or beyond the far plane
+    const double d = std::hypot(q.x() - x, q.y() - y);
+    if (d > radius) continue;
+    if (best < 0 || d < best_distance - 1e-9 || (std::abs(d - best_distance) <= 1e-9 && q.z() < best_depth)) {
+      best = i;
+      best_distance = d;
+      best_depth = q.z();
+    }
+  }
+  if (depth && best >= 0) *depth = best_depth;
+  return best;
+}
+
 Camera framing_camera(const Picture& picture, double aspect) {
   auto box = picture.subject_box();
   if (!std::isfinite(box[0].x())) box = picture.box();

@@ -69,7 +69,14 @@ struct Camera {
   /// Pixel coordinates (x right, y down from the top-left corner) of a world point in a width x height
   /// image; z of the result is the depth in [-1, 1].
   Vec3 project(const Vec3& point, int width, int height) const;
+  /// The world point at pixel (x, y) and depth z in [-1, 1]: project's inverse.
+  Vec3 unproject(double x, double y, double depth, int width, int height) const;
 };
+
+/// The free particle drawn nearest to pixel (x, y), within `radius` pixels, or -1; among equally near
+/// ones the one in front. Its depth (as project gives it) goes to *depth.
+Index pick_particle(const System& system, const Camera& camera, double x, double y, double radius, int width, int height,
+                    double* depth = nullptr);
 
 /// A camera that frames the picture's subject (Picture::is_subject) from above and aside.
 Camera framing_camera(const Picture& picture, double aspect);
