@@ -74,6 +74,16 @@ int main(int argc, char** argv) {
     const bool temporary_frames = render_dir.empty() && !video.empty();
     if (temporary_frames)
       frames_dir = std::filesystem::temp_directory_path() / ("sinew-demo-frames-" + std::to_string(::getpid()));
+    // The temporary folder goes however the run ends.
+    struct RemoveOnExit {
+      std::filesystem::path path;
+      ~RemoveOnExit() {
+        std::error_code ignored;
+        if (!path.empty()) std::filesystem::remove_all(path, ignored);
+      }
+    } remove_frames{temporary_frames ? frames_dir : std::filesystem::path()};
+    if (!frames_dir.empty() && std::filesystem::exists(frames_dir) && !std::filesystem::is_directory(frames_dir))
+      sinew::fail("--render: '", frames_dir.string(), "' exists and is not a folder");
     std::unique_ptr<sinew::render::Offscreen> offscreen;
     sinew::render::Camera camera;
     if (!frames_dir.empty()) {
@@ -114,8 +124,7 @@ int main(int argc, char** argv) {
       }
     }
     if (!video.empty()) {
-      sinew::render::encode_video(frames_dir.string(), 1.0 / dt, video);
-      if (temporary_frames) std::filesystem::remove_all(frames_dir);
+      sinew::render::encode_video(frames_dir.string(), frames, 1.0 / dt, video);
     }
     const double energy_end = scene->total_energy();
     std::printf(
@@ -126,6 +135,9 @@ int main(int argc, char** argv) {
         wall_ms / frames, drift, stretch, penetration, energy_start, energy_end);
   } catch (const sinew::Error& e) {
     std::printf("{\"scene\": \"%s\", \"finite\": false, \"error\": \"%s\"}\n", scene_name.c_str(), e.what());
+    std::fprintf(stderr, "sinew-demo: %s\n", e.what());
+    return 1;
+  } catch (const std::exception& e) {  // files: a folder that cannot be made, a disk that is full
     std::fprintf(stderr, "sinew-demo: %s\n", e.what());
     return 1;
   }

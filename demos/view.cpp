@@ -107,7 +107,10 @@ int main(int argc, char** argv) {
       glfwPollEvents();
       int fb_width, fb_height;
       glfwGetFramebufferSize(window, &fb_width, &fb_height);
-      if (fb_width < 1 || fb_height < 1) continue;
+      if (fb_width < 1 || fb_height < 1) {  // minimised: wait instead of spinning
+        glfwWaitEvents();
+        continue;
+      }
       System& s = session->scene->system();
       ImGui_ImplOpenGL2_NewFrame();
       ImGui_ImplGlfw_NewFrame();
@@ -143,6 +146,7 @@ int main(int argc, char** argv) {
       }
       if (io.MouseReleased[0] && session->grabbed >= 0) {
         s.set_binding_spring_active(session->spring, false);
+        s.particles().v.col(session->cursor).setZero();  // the cursor particle stays where it was let go
         session->grabbed = -1;
       }
       if (session->grabbed >= 0) {
@@ -179,7 +183,11 @@ int main(int argc, char** argv) {
       ImGui::Text("CG iterations: %d + %d, residual %.1e%s", st.cg_iterations_step1, st.cg_iterations_step4, st.cg_residual,
                   st.cg_converged ? "" : " (not converged)");
       ImGui::Text("hard-binding drift: %.2e m", session->scene->hard_binding_drift());
-      ImGui::Text("binding-spring stretch: %.2e m", s.binding_springs().max_stretch(s.particles().x));
+      double stretch = 0.0;  // the scene's springs, not the mouse spring
+      for (Index k = 0; k < s.binding_springs().size(); ++k)
+        if (k != session->spring && s.binding_springs().active(k))
+          stretch = std::max(stretch, (s.particles().x.col(s.binding_springs().a(k)) - s.particles().x.col(s.binding_springs().b(k))).norm());
+      ImGui::Text("binding-spring stretch: %.2e m", stretch);
       ImGui::Text(session->grabbed >= 0 ? "holding particle %lld" : "left-drag the cloth to grab it", static_cast<long long>(session->grabbed));
       ImGui::End();
 
@@ -215,7 +223,7 @@ int main(int argc, char** argv) {
     ImGui::DestroyContext();
     glfwDestroyWindow(window);
     glfwTerminate();
-  } catch (const Error& e) {
+  } catch (const std::exception& e) {  // sinew::Error and file errors alike
     std::fprintf(stderr, "sinew-view: %s\n", e.what());
     return 1;
   }

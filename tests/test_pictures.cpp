@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -69,8 +70,33 @@ TEST(DemoRender, WritesOnePicturePerFrame) {
   EXPECT_FALSE(fs::exists(dir / "frame_0004.png"));
 }
 
+TEST(DemoRender, AFileWhereTheFolderShouldBeIsNamed) {
+  const fs::path dir = out_dir("not-a-folder");
+  std::ofstream(dir / "taken") << "x";
+  const std::string log = (dir / "log.txt").string();
+  const int status = std::system((std::string(SINEW_DEMO) + " hello --frames 1 --size 64x48 --render " + (dir / "taken").string() + " > " +
+                                  log + " 2>&1")
+                                     .c_str());
+  EXPECT_NE(status, 0);
+  std::ifstream in(log);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("exists and is not a folder"), std::string::npos) << text;
+}
+
 TEST(DemoRender, BadSizeIsRefused) {
   EXPECT_NE(run(std::string(SINEW_DEMO) + " hello --frames 1 --size 10xx --render " + out_dir("bad").string()), 0);
+}
+
+// The number of frames ffprobe counts in a video, or -1 when it cannot read one.
+int video_frames(const fs::path& file) {
+  const std::string command = "ffprobe -v error -count_frames -select_streams v:0 -show_entries stream=nb_read_frames -of csv=p=0 '" +
+                              file.string() + "' 2>/dev/null";
+  FILE* pipe = popen(command.c_str(), "r");
+  if (pipe == nullptr) return -1;
+  int n = -1;
+  if (std::fscanf(pipe, "%d", &n) != 1) n = -1;
+  pclose(pipe);
+  return n;
 }
 
 TEST(DemoVideo, AssemblesAnMp4AndAGif) {
@@ -79,8 +105,20 @@ TEST(DemoVideo, AssemblesAnMp4AndAGif) {
   ASSERT_EQ(run(std::string(SINEW_DEMO) + " hello --frames 6 --size 160x90 --video " + (dir / "hello.mp4").string()), 0);
   ASSERT_TRUE(fs::exists(dir / "hello.mp4"));
   EXPECT_EQ(head(dir / "hello.mp4", 8).substr(4), "ftyp") << "not an MP4 file";
+  EXPECT_EQ(video_frames(dir / "hello.mp4"), 6);
   ASSERT_EQ(run(std::string(SINEW_DEMO) + " hello --frames 6 --size 160x90 --video " + (dir / "hello.gif").string()), 0);
   EXPECT_EQ(head(dir / "hello.gif", 6), "GIF89a");
+}
+
+// A folder that held a longer run's frames: the video has this run's frames only.
+TEST(DemoVideo, HasThisRunsFramesOnly) {
+  if (run("command -v ffprobe") != 0) GTEST_SKIP() << "ffmpeg is not installed (.ci/deps installs it)";
+  const fs::path dir = out_dir("stale");
+  ASSERT_EQ(run(std::string(SINEW_DEMO) + " hello --frames 6 --size 64x48 --render " + (dir / "frames").string()), 0);
+  ASSERT_EQ(run(std::string(SINEW_DEMO) + " hello --frames 3 --size 64x48 --render " + (dir / "frames").string() + " --video " +
+                (dir / "three.mp4").string()),
+            0);
+  EXPECT_EQ(video_frames(dir / "three.mp4"), 3);
 }
 
 TEST(DemoVideo, MissingFfmpegIsNamed) {

@@ -176,6 +176,8 @@ void System::set_binding_spring_ends(Index spring, Index a, Index b) {
   const Index n = m_particles.size();
   if (a < 0 || a >= n || b < 0 || b >= n) fail("binding spring ", spring, ": ends ", a, " and ", b, " must be particles (0 to ", n - 1, ")");
   if (a == b) fail("binding spring ", spring, ": both ends are particle ", a);
+  if (m_finalized && !(m_inverse_effective_mass[a] + m_inverse_effective_mass[b] > 0.0))
+    fail("binding spring ", spring, ": ends ", a, " and ", b, " both have infinite mass (kinematic or on kinematic parents)");
   m_springs.set_ends(spring, a, b);
   if (m_finalized) m_springs.set_damping_from_masses(m_inverse_effective_mass);
 }

@@ -119,6 +119,18 @@ void ground(const Picture& picture, const Camera& camera) {
   glEnd();
 }
 
+// BulletScene::surfaces() names rigid bodies' surfaces "body<index>"; anything else is a deformable.
+Index body_index(const std::string& name, std::size_t bodies) {
+  if (name.size() < 5 || name.compare(0, 4, "body") != 0) return -1;
+  Index b = 0;
+  for (std::size_t i = 4; i < name.size(); ++i) {
+    if (name[i] < '0' || name[i] > '9') return -1;
+    b = 10 * b + (name[i] - '0');
+    if (b >= static_cast<Index>(bodies)) return -1;
+  }
+  return b;
+}
+
 Mat4 look_at(const Vec3& eye, const Vec3& target, const Vec3& up) {
   const Vec3 f = (target - eye).normalized();
   const Vec3 s = f.cross(up).normalized();
@@ -161,8 +173,9 @@ Picture picture_of(scenes::BulletScene& scene, const Overlays& overlays) {
   std::optional<double> plane_y;
   const auto& bullet_bodies = scene.bullet().bodies();
   for (auto& surface : scene.surfaces()) {
-    if (surface.name.rfind("body", 0) == 0) {
-      const btRigidBody* body = bullet_bodies[std::stoul(surface.name.substr(4))];
+    const Index b = body_index(surface.name, bullet_bodies.size());
+    if (b >= 0) {
+      const btRigidBody* body = bullet_bodies[b];
       const btCollisionShape* shape = body->getCollisionShape();
       if (shape->getShapeType() == STATIC_PLANE_PROXYTYPE) {
         const auto* plane = static_cast<const btStaticPlaneShape*>(shape);
@@ -175,8 +188,8 @@ Picture picture_of(scenes::BulletScene& scene, const Overlays& overlays) {
       }
     }
     DrawMesh mesh;
-    mesh.deformable = surface.name.rfind("body", 0) != 0;
-    mesh.dynamic = mesh.deformable || !bullet_bodies[std::stoul(surface.name.substr(4))]->isStaticOrKinematicObject();
+    mesh.deformable = b < 0;
+    mesh.dynamic = mesh.deformable || !bullet_bodies[b]->isStaticOrKinematicObject();
     mesh.name = std::move(surface.name);
     mesh.vertices = std::move(surface.vertices);
     mesh.triangles = std::move(surface.triangles);
@@ -406,11 +419,12 @@ void write_png(const std::string& path, int width, int height, const std::vector
   if (!stbi_write_png(path.c_str(), width, height, 4, rgba.data(), width * 4)) fail("write_png: cannot write '", path, "'");
 }
 
-void encode_video(const std::string& frames_dir, double fps, const std::string& file) {
+void encode_video(const std::string& frames_dir, int frames, double fps, const std::string& file) {
   if (std::system("command -v ffmpeg > /dev/null 2>&1") != 0)
     fail("--video: ffmpeg is not installed (apt-get install ffmpeg); the frames are in ", frames_dir);
   const std::string extension = std::filesystem::path(file).extension().string();
-  const std::string input = "-framerate " + std::to_string(fps) + " -i '" + frames_dir + "/frame_%04d.png'";
+  // -frames:v: a folder used before may hold more frames than this run wrote.
+  const std::string input = "-framerate " + std::to_string(fps) + " -i '" + frames_dir + "/frame_%04d.png' -frames:v " + std::to_string(frames);
   std::string command;
   if (extension == ".gif")
     command = "ffmpeg -loglevel error -y " + input + " -vf 'split[a][b];[a]palettegen[p];[b][p]paletteuse' '" + file + "'";

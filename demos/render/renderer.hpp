@@ -116,8 +116,8 @@ std::vector<std::uint8_t> read_pixels(int width, int height);
 /// Writes RGBA pixels (rows from the top) as a PNG; throws sinew::Error naming the file on failure.
 void write_png(const std::string& path, int width, int height, const std::vector<std::uint8_t>& rgba);
 
-/// Assembles DIR/frame_%04d.png into an MP4 (or a GIF, by the file's extension) with ffmpeg; throws
-/// sinew::Error when ffmpeg is missing or fails.
-void encode_video(const std::string& frames_dir, double fps, const std::string& file);
+/// Assembles DIR/frame_0001.png to frame_<frames>.png into an MP4 (or a GIF, by the file's extension)
+/// with ffmpeg; throws sinew::Error when ffmpeg is missing or fails.
+void encode_video(const std::string& frames_dir, int frames, double fps, const std::string& file);
 
 }  // namespace sinew::render

@@ -114,7 +114,7 @@ Index Coupling::rigid_particle(btRigidBody* body) {
       s.inertia[i] = 1.0 / static_cast<double>(inverse[i]);
     }
   }
-  s.gravity = false;  // Bullet applies gravity to its bodies; sinew hands over only the coupling impulse
+  s.gravity = false;  // gravity comes with Bullet's total force on the body, copied in every tick
   const Index b = m_system.add_rigid_body(s);
   m_bodies.push_back(body);
   return b;
@@ -144,16 +144,18 @@ Index Coupling::attach(Index point, btRigidBody* body, const Vec3& local, double
 }
 
 // Section 5, in order:
-//   1. copy each Bullet body's state into its rigid-body particle;
+//   1. copy each Bullet body's state into its rigid-body particle, with the total force and torque
+//      Bullet has gathered on it (gravity, the application's forces) and its joints' equality rows;
 //   2-5. the Newmark step with the rigid-body particles as 6-DOF parents; collisions for deformables only;
-//   6. copy momentum only back: each body receives the change of linear and angular momentum the
-//      deformables gave it (gravity stays Bullet's, so it is not applied twice), and wakes up;
+//   6. copy momentum only back: each body ends with the step's velocity plus the changes Bullet makes
+//      after it (contacts, joint corrections), and wakes up; Bullet's own force impulse is taken out of
+//      what it is handed, since the step has integrated that force already;
 //   7. Bullet then integrates and collides the rigid bodies itself (the rest of its internal tick).
 // Step 6 is split around step 7 so that Bullet moves each body along the Newmark position update
 // (x^{n+1} = x^n + dt v~^{n+1/2}, section 3.3 step 2) and ends the tick with the Newmark velocity
 // v^{n+1}: handing v^{n+1} to Bullet's position update instead (x += dt v^{n+1}) is unstable for stiff
 // binding springs between rigid bodies, whose v^{n+1} flips sign every step. Bullet's own velocity
-// changes in step 7 (gravity, contacts, constraints) are kept on top.
+// changes in step 7 (contacts, constraints) are kept on top.
 StepStats Coupling::tick(double dt) {
   copy_state_in();
   copy_joints_in(dt);
@@ -234,7 +236,8 @@ void Coupling::copy_joints_in(double dt) {
   const RigidBodyParticles& bodies = m_system.rigid_bodies();
   for (int c = 0; c < m_world->getNumConstraints(); ++c) {
     btTypedConstraint* joint = m_world->getConstraint(c);
-    if (!joint->isEnabled()) continue;
+    // A breakable joint's rows are bounded by its threshold: Bullet alone decides when it breaks.
+    if (!joint->isEnabled() || joint->getBreakingImpulseThreshold() < SIMD_INFINITY) continue;
     const btRigidBody& body_a = joint->getRigidBodyA();
     const btRigidBody& body_b = joint->getRigidBodyB();
     const Index a = index_of(&body_a), b = index_of(&body_b);
@@ -245,10 +248,13 @@ void Coupling::copy_joints_in(double dt) {
     if (rows <= 0) continue;
     // Eight arrays: J1 linear, J1 angular, J2 linear, J2 angular, error, cfm, lower and upper limits.
     // Bullet's solver points them into its row structs, so every one of them strides by rowskip.
-    constexpr int skip = 3;
-    m_joint_buffer.assign(static_cast<std::size_t>(8 * skip * rows), btScalar(0));
+    // Bullet's solver uses a row stride of 4 or more (16-byte rows), and some joints write a row as a
+    // btVector3, four scalars: stride 4, and one spare row at the end of every array.
+    constexpr int skip = 4;
+    const int length = skip * (rows + 1);
+    m_joint_buffer.assign(static_cast<std::size_t>(8 * length), btScalar(0));
     btScalar* array[8];
-    for (int k = 0; k < 8; ++k) array[k] = m_joint_buffer.data() + k * skip * rows;
+    for (int k = 0; k < 8; ++k) array[k] = m_joint_buffer.data() + k * length;
     btTypedConstraint::btConstraintInfo2 info2;
     info2.fps = btScalar(1.0 / dt);
     info2.erp = m_world->getSolverInfo().m_erp;
@@ -261,8 +267,10 @@ void Coupling::copy_joints_in(double dt) {
     info2.cfm = array[5];
     info2.m_lowerLimit = array[6];
     info2.m_upperLimit = array[7];
+    // As Bullet's solver prepares them: the global CFM on the first row only, unbounded limits.
+    const btScalar global_cfm = m_world->getSolverInfo().m_globalCfm;
+    info2.cfm[0] = global_cfm;
     for (int r = 0; r < rows; ++r) {
-      info2.cfm[skip * r] = m_world->getSolverInfo().m_globalCfm;
       info2.m_lowerLimit[skip * r] = -SIMD_INFINITY;
       info2.m_upperLimit[skip * r] = SIMD_INFINITY;
     }
@@ -272,7 +280,9 @@ void Coupling::copy_joints_in(double dt) {
     const Vec6 twist_a = (Vec6() << to_eigen(body_a.getLinearVelocity()), to_eigen(body_a.getAngularVelocity())).finished();
     const Vec6 twist_b = (Vec6() << to_eigen(body_b.getLinearVelocity()), to_eigen(body_b.getAngularVelocity())).finished();
     for (int r = 0; r < rows; ++r) {
-      if (info2.m_lowerLimit[skip * r] > -SIMD_INFINITY || info2.m_upperLimit[skip * r] < SIMD_INFINITY || info2.cfm[skip * r] > btScalar(0))
+      // Rows the joint bounded (limits, motors) or softened (a CFM of its own) stay Bullet's.
+      const btScalar seeded_cfm = r == 0 ? global_cfm : btScalar(0);
+      if (info2.m_lowerLimit[skip * r] > -SIMD_INFINITY || info2.m_upperLimit[skip * r] < SIMD_INFINITY || info2.cfm[skip * r] > seeded_cfm)
         continue;
       Vec6 j_a, j_b;
       for (int d = 0; d < 3; ++d) {
@@ -307,7 +317,9 @@ void Coupling::copy_joints_in(double dt) {
 // rotation already has one) before it solves the joints and moves the body. Those are subtracted here,
 // so that a body no joint or contact touches moves exactly along the step's position update; a stiff
 // binding spring on it then meets its end where the step left it. The gyroscopic change depends on
-// the w handed over, hence the fixed-point iteration (it contracts by about dt |w| per pass).
+// the w handed over, hence the fixed-point iteration (it contracts by about dt |w| per pass). Bullet's
+// linear and angular damping (0 unless the application sets it) still act on what is handed over,
+// before the solver: such a body ends d dt^2 |v| or so away from the step's update.
 void Coupling::hand_over(btRigidBody* body, const Vec3& v, const Vec3& w, double dt) {
   const btScalar h = btScalar(dt);
   const btVector3 dv = body->getTotalForce() * (body->getInvMass() * h);
