@@ -627,6 +627,86 @@ TEST(DihedralBending, ZeroForceAndEnergyAtRest) {
   expect_at_rest(make_bending(cloth), cloth.rest, 0.02 / kSpacing);
 }
 
+// Implicit bending: the products are D v + b K+ v with K+ = -2 k_b w g g^T (Gauss-Newton). Where
+// every hinge is at its rest angle (here the rest sheet turned rigidly) that is the exact
+// differential; bent, K+ stays symmetric negative semi-definite while the exact differential need
+// not; the diagonal blocks are the probed products' blocks.
+TEST(DihedralBending, ImplicitProductsAreDampingPlusGaussNewtonDifferential) {
+  std::mt19937 rng(21);
+  const Cloth cloth;
+  DihedralBending bending(DihedralBending::hinges_from_triangles(cloth.triangles), cloth.rest,
+                          {.stiffness = 0.02, .damping = 0.003, .implicit = true});
+  ASSERT_TRUE(bending.has_definite_differentials());
+  EXPECT_FALSE(make_bending(cloth).has_definite_differentials());  // explicit unless asked
+  const Index n = cloth.rest.cols();
+  bending.set_implicit(true);
+  auto implicit = [&](const Vectors3& v, double b) {
+    Vectors3 f = Vectors3::Zero(3, n);
+    bending.add_implicit_products(v, b, f);
+    return f;
+  };
+  const Mat3 turn = Eigen::AngleAxisd(0.7, Vec3(1, 2, -1).normalized()).toRotationMatrix();
+  bending.update_position_state(turn * cloth.rest);
+  for (int trial = 0; trial < 3; ++trial) {
+    const Vectors3 v = random_like(cloth.rest, 1.0, rng);
+    EXPECT_LT(relative_error(implicit(v, 0.25), damping_forces(bending, v) + 0.25 * differentials(bending, v)), 1e-12);
+  }
+  bending.update_position_state(folded(cloth, rng));
+  for (int trial = 0; trial < 20; ++trial) {
+    const Vectors3 u = random_like(cloth.rest, 1.0, rng), v = random_like(cloth.rest, 1.0, rng);
+    const Vectors3 ku = implicit(u, 1.0) - damping_forces(bending, u), kv = implicit(v, 1.0) - damping_forces(bending, v);
+    const double scale = flat(u).norm() * flat(kv).norm();
+    EXPECT_NEAR(flat(u).dot(flat(kv)), flat(v).dot(flat(ku)), 1e-12 * scale);
+    EXPECT_LE(flat(u).dot(flat(ku)), 1e-12 * scale);
+  }
+  Eigen::Matrix<double, 9, Eigen::Dynamic> blocks = Eigen::Matrix<double, 9, Eigen::Dynamic>::Zero(9, n);
+  ASSERT_TRUE(bending.add_implicit_diagonal_blocks(0.25, blocks));
+  for (Index i = 0; i < n; ++i) {
+    Mat3 probed;
+    for (Index c = 0; c < 3; ++c) {
+      Vectors3 e = Vectors3::Zero(3, n);
+      e(c, i) = 1.0;
+      probed.col(c) = -implicit(e, 0.25).col(i);
+    }
+    EXPECT_LT((Eigen::Map<const Mat3>(blocks.col(i).data()) - probed).norm(), 1e-12 * (1.0 + probed.norm())) << "particle " << i;
+  }
+}
+
+// The multigrid assembles its coarse operators from the diagonal blocks and the pair blocks: together
+// they must be exactly the matrix the implicit products apply, for springs and for bending.
+TEST(Forces, PairAndDiagonalBlocksAssembleTheImplicitProducts) {
+  std::mt19937 rng(22);
+  const Cloth cloth;
+  const Index n = cloth.rest.cols();
+  EdgeSprings springs = make_springs(cloth);
+  DihedralBending bending(DihedralBending::hinges_from_triangles(cloth.triangles), cloth.rest,
+                          {.stiffness = 0.02, .damping = 0.003, .implicit = true});
+  bending.set_implicit(true);
+  struct Dense final : PairBlockSink {
+    MatrixXd m;
+    void add(Index i, Index j, const Mat3& block) override {
+      m.block<3, 3>(3 * i, 3 * j) += block;
+      m.block<3, 3>(3 * j, 3 * i) += block.transpose();
+    }
+  };
+  for (Force* force : {static_cast<Force*>(&springs), static_cast<Force*>(&bending)}) {
+    force->update_position_state(cloth.deformed(rng));
+    Dense dense;
+    dense.m.setZero(3 * n, 3 * n);
+    ASSERT_TRUE(force->visit_implicit_pair_blocks(0.25, dense)) << force->name();
+    Eigen::Matrix<double, 9, Eigen::Dynamic> blocks = Eigen::Matrix<double, 9, Eigen::Dynamic>::Zero(9, n);
+    ASSERT_TRUE(force->add_implicit_diagonal_blocks(0.25, blocks));
+    for (Index i = 0; i < n; ++i) dense.m.block<3, 3>(3 * i, 3 * i) -= Eigen::Map<const Mat3>(blocks.col(i).data());
+    for (int trial = 0; trial < 3; ++trial) {
+      const Vectors3 v = random_like(cloth.rest, 1.0, rng);
+      Vectors3 f = Vectors3::Zero(3, n);
+      force->add_implicit_products(v, 0.25, f);
+      const VectorXd assembled = dense.m * flat(v);
+      EXPECT_LT((assembled - flat(f)).norm(), 1e-12 * (1.0 + flat(f).norm())) << force->name();
+    }
+  }
+}
+
 TEST(DihedralBending, HingesFromTrianglesFindsEachInteriorEdgeOnce) {
   const Cloth cloth;
   const std::vector<Hinge> hinges = DihedralBending::hinges_from_triangles(cloth.triangles);

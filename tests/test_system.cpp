@@ -425,6 +425,14 @@ TEST(System, BadSettingsAreNamed) {
             }).find("particle 0 has mass 0"),
             std::string::npos);
   EXPECT_NE(error_of([] { System s; s.step(std::nan("")); }).find("dt nan"), std::string::npos);
+  EXPECT_NE(error_of([] {
+              System s;
+              s.add_particle(Vec3::Zero(), Vec3::Zero(), 1.0);
+              s.step_settings().multigrid = true;
+              s.step_settings().jacobi_preconditioner = false;
+              s.step(0.01);
+            }).find("multigrid needs jacobi_preconditioner"),
+            std::string::npos);
 }
 
 TEST(System, NonFiniteStateStopsTheStepNamingPhaseAndParticle) {

@@ -77,7 +77,7 @@ std::vector<Index> add_cloth_mesh(System& system, const Vectors3& vertices, cons
   std::vector<DihedralBending::Triangle> bending_triangles(mapped.begin(), mapped.end());
   if (s.bending_stiffness > 0)
     system.add_force(std::make_unique<DihedralBending>(DihedralBending::hinges_from_triangles(bending_triangles), rest,
-                                                       DihedralBendingSettings{s.bending_stiffness, s.bending_damping}));
+                                                       DihedralBendingSettings{s.bending_stiffness, s.bending_damping, s.bending_implicit}));
   if (s.membrane_mu > 0 || s.membrane_lambda > 0)
     system.add_force(std::make_unique<TriangleMembrane>(std::vector<TriangleMembrane::Triangle>(mapped.begin(), mapped.end()),
                                                         rest, TriangleMembraneSettings{s.membrane_mu, s.membrane_lambda, s.membrane_damping}));

@@ -130,6 +130,7 @@ void Newmark::allocate(const System& s) {
   m_constraints.reserve(static_cast<std::size_t>(n));
   m_has_damping = false;
   for (const auto& f : s.m_forces) m_has_damping = m_has_damping || f->has_damping();
+  m_multigrid.reset();
   m_allocated = true;
 }
 
@@ -138,8 +139,11 @@ StepStats Newmark::step(System& s, double dt) {
   if (!m_allocated) allocate(s);
   const auto start = Clock::now();
   m_implicit_elasticity = false;  // the setting may change between steps
-  for (const auto& f : s.m_forces)
-    m_implicit_elasticity = m_implicit_elasticity || (s.m_step_settings.implicit_elasticity && f->has_definite_differentials());
+  for (const auto& f : s.m_forces) {
+    const bool implicit = s.m_step_settings.implicit_elasticity && f->has_definite_differentials();
+    f->set_implicit(implicit);
+    m_implicit_elasticity = m_implicit_elasticity || implicit;
+  }
   StepStats stats;
   stats.substeps = 1;
   stats.dt = dt;
@@ -596,10 +600,30 @@ void Newmark::build_preconditioner(System& s, double h, double beta, double beta
   for (Index b = 0; b < m_r; ++b)
     m_body_preconditioner[b] = m_dynamic_body[b] ? Eigen::Matrix<double, 6, 6>(m_body_preconditioner[b].inverse())
                                                  : Eigen::Matrix<double, 6, 6>::Zero();
+  m_use_multigrid = jacobi && s.m_step_settings.multigrid;
+  if (m_use_multigrid) {
+    // The coarse operators: the full diagonal blocks (mass included) and every force's pair blocks
+    // of S = M - h F, restricted to the particle unknowns.
+    for (Index i = 0; i < m_n; ++i) {
+      auto block = m_diag_blocks.col(i);
+      block[0] += m_dof_mass[i];
+      block[4] += m_dof_mass[i];
+      block[8] += m_dof_mass[i];
+    }
+    m_multigrid.begin(m_dynamic_mask, m_diag_blocks, -h);
+    for (const auto& f : s.m_forces) f->visit_implicit_pair_blocks(f->has_definite_differentials() ? beta_el : 0.0, m_multigrid);
+    m_multigrid.end();
+  }
 }
 
 // Rows without unknowns have zero inverse blocks, so z is zero there without projecting.
-void Newmark::precondition(const GeneralizedVector& r, GeneralizedVector& z) const {
+void Newmark::precondition(const GeneralizedVector& r, GeneralizedVector& z) {
+  if (m_use_multigrid) {
+    m_multigrid.apply(r.particles, z.particles, m_inverse_blocks);
+    for (Index b = 0; b < m_r; ++b) z.rigid.col(b) = m_body_preconditioner[b] * r.rigid.col(b);
+    project_constraints(z);
+    return;
+  }
   const double* pb = m_inverse_blocks.data();
   const double* pr = r.particles.data();
   double* pz = z.particles.data();

@@ -3,6 +3,8 @@
 
 #include "sinew/system.hpp"
 
+#include "multigrid.hpp"
+
 #include <Eigen/Core>
 
 #include <vector>
@@ -47,7 +49,7 @@ class Newmark {
                     GeneralizedVector* alternative = nullptr);
   void apply(System& s, double h, double beta, double beta_el, const GeneralizedVector& u, GeneralizedVector& out);
   void build_preconditioner(System& s, double h, double beta, double beta_el, bool jacobi);
-  void precondition(const GeneralizedVector& r, GeneralizedVector& z) const;
+  void precondition(const GeneralizedVector& r, GeneralizedVector& z);
   void project(GeneralizedVector& u) const;
   /// project() without the particle mask: for vectors already zero on rows without unknowns.
   void project_constraints(GeneralizedVector& u) const;
@@ -94,6 +96,8 @@ class Newmark {
   };
   std::vector<JointGroup> m_joint_groups;
   mutable VectorXd m_joint_scratch;
+  AggregationMultigrid m_multigrid;  // StepSettings::multigrid
+  bool m_use_multigrid = false;      // this solve preconditions with the multigrid
   bool m_has_damping = false;
   bool m_implicit_elasticity = false;  // some elastic force enters the step-1 solve
 };

@@ -390,6 +390,8 @@ void System::clamp_bound_rows() {
 
 StepStats System::step(double dt) {
   if (!(std::isfinite(dt) && dt > 0.0)) fail("step: dt ", dt, " must be positive and finite");
+  if (m_step_settings.multigrid && !m_step_settings.jacobi_preconditioner)
+    fail("step settings: multigrid needs jacobi_preconditioner (block Jacobi is its finest level)");
   finalize();
   set_thread_count(m_step_settings.threads);
   StepStats stats = m_newmark->step(*this, dt);

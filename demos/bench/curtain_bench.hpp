@@ -36,6 +36,8 @@ struct CurtainSpec {
   double stretch_stiffness = 200.0;  ///< per edge of the triangle mesh [N/m]
   double stretch_damping = 0.05;     ///< per edge, along it [N s/m]
   double bending_stiffness = 1e-4;   ///< dihedral [N m] (sinew); peers use their nearest model
+  /// sinew's bending joins the implicit solves with implicit elasticity (ClothMaterial::bending_implicit).
+  bool bending_implicit = false;
   int rings = 10;
   double ring_mass = 0.05;           ///< [kg]
   double ring_radius = 0.04;         ///< [m] (inertia of a thin ring: m R^2 about its axis)

@@ -46,6 +46,7 @@ class SinewCurtain final : public SinewCurtainRun {
     grid.stretch_stiffness = spec.stretch_stiffness;
     grid.stretch_damping = spec.stretch_damping;
     grid.bending_stiffness = spec.bending_stiffness;
+    grid.bending_implicit = spec.bending_implicit;
     grid.origin = node_rest_position(spec, 0, 0);
     grid.across = Vec3::UnitX();
     grid.down = -Vec3::UnitY();
@@ -70,6 +71,7 @@ class SinewCurtain final : public SinewCurtainRun {
 
     StepSettings& step = system.step_settings();
     step.implicit_elasticity = settings.implicit_elasticity;
+    step.multigrid = settings.multigrid;
     step.cg_tolerance = settings.cg_tolerance;
     step.cfl = settings.cfl;
     step.threads = settings.threads;

@@ -18,6 +18,8 @@ struct SinewSettings {
   /// Edge springs enter both velocity solves implicitly (StepSettings::implicit_elasticity): no
   /// stable-step limit from them, first-order accurate in their stiff modes.
   bool implicit_elasticity = false;
+  /// StepSettings::multigrid: the aggregation multigrid preconditioner (with implicit elasticity).
+  bool multigrid = false;
   double cg_tolerance = 1e-9;  ///< StepSettings::cg_tolerance [m/s]
   double cfl = 0.9;            ///< StepSettings::cfl
   int threads = 1;             ///< StepSettings::threads (bit-identical for any count)

@@ -16,6 +16,9 @@ struct ClothMaterial {
   double stretch_damping = 0.05;       ///< edge springs b [N s/m]
   double bending_stiffness = 1e-4;     ///< dihedral bending k_b [N m]; 0 leaves it out
   double bending_damping = 0.0;
+  /// DihedralBendingSettings::implicit: with StepSettings::implicit_elasticity, bending joins the
+  /// solves (its Gauss-Newton differential) and stops limiting the substep.
+  bool bending_implicit = false;
   double membrane_mu = 0.0;            ///< StVK membrane [N/m]; 0 leaves it out
   double membrane_lambda = 0.0;
   double membrane_damping = 0.0;       ///< strain-rate damping [s]

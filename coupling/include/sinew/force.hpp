@@ -16,6 +16,18 @@
 
 namespace sinew {
 
+/// Receives the off-diagonal blocks of a force's implicit matrix D + b K+, one node pair at a time
+/// (the aggregation multigrid builds its coarse operators from them).
+class PairBlockSink {
+ public:
+  /// The block coupling nodes i and j (i != j): (D + b K+)_ij, 3x3; the (j, i) block is its transpose.
+  /// A pair may come several times (once per element that couples it); the blocks add.
+  virtual void add(Index i, Index j, const Mat3& block) = 0;
+
+ protected:
+  ~PairBlockSink() = default;
+};
+
 class Force {
  public:
   virtual ~Force() = default;
@@ -52,6 +64,11 @@ class Force {
   /// exact differential wherever that is definite) and so may be treated implicitly.
   virtual bool has_definite_differentials() const { return false; }
 
+  /// Called before every step with whether the step treats this force implicitly (it has definite
+  /// differentials and StepSettings::implicit_elasticity is on), before update_position_state, so
+  /// that a force can cache what its implicit products need only when they are used.
+  virtual void set_implicit(bool implicit) { (void)implicit; }
+
   /// f += D v + b K+ v at the cached state: what the implicit solve multiplies by, in one pass over
   /// the elements. Forces without a definite differential add D v only (b must then be 0).
   virtual void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
@@ -70,6 +87,15 @@ class Force {
   /// blocks; the preconditioner then uses add_implicit_diagonal (a multiple of the identity).
   virtual bool add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const {
     (void)b, (void)blocks;
+    return false;
+  }
+
+  /// Passes every off-diagonal block of D + b K+ (exactly the couplings add_implicit_products applies)
+  /// to `sink`, always in the same order and always every pair, even where the block is zero (the
+  /// multigrid records the sequence once). Returns false when the force does not provide them; its
+  /// couplings then reach only the finest level of the multigrid.
+  virtual bool visit_implicit_pair_blocks(double b, PairBlockSink& sink) const {
+    (void)b, (void)sink;
     return false;
   }
 

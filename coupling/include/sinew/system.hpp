@@ -60,6 +60,12 @@ struct StepSettings {
   /// provide them, Force::add_implicit_diagonal_blocks, else a third of their trace times I), each
   /// rigid body's 6x6 block with what its hard-bound points carry. Off: the mass matrix alone.
   bool jacobi_preconditioner = true;
+  /// Aggregation multigrid on the particles (one V-cycle per CG iteration, block-Jacobi smoothing,
+  /// coarse operators summed from the forces' pair blocks), the rigid bodies' 6x6 blocks as in block
+  /// Jacobi. Its iteration count hardly grows with resolution or step where block Jacobi's grows as
+  /// dt / dx, so it pays off for implicit elasticity at large steps or fine meshes; a V-cycle costs
+  /// about three products of the implicit system. Needs jacobi_preconditioner.
+  bool multigrid = false;
   /// Elastic forces with a definite differential (edge springs) enter both velocity solves
   /// implicitly, linearised once: (M - dt/2 D - dt^2/4 K+) v = M v_start + dt/2 F(x), at x^n in
   /// step 1 and x^{n+1/2} in step 4; they then no longer limit advance()'s substep. This damps their

@@ -195,6 +195,16 @@ DihedralBending::DihedralBending(std::vector<Hinge> hinges, const Vectors3& rest
   detail::Incidence incidence = detail::Incidence::build(m_hinges, detail::index_span(m_hinges));
   m_incidence_offsets = std::move(incidence.offsets);
   m_incidence = std::move(incidence.elements);
+  // The slot 4 h + a of each incidence entry: where node i sits in hinge h.
+  m_incidence_slot.resize(m_incidence.size());
+  for (std::size_t i = 0; i + 1 < m_incidence_offsets.size(); ++i)
+    for (Index k = m_incidence_offsets[i]; k < m_incidence_offsets[i + 1]; ++k) {
+      const Index h = m_incidence[static_cast<std::size_t>(k)];
+      const Hinge& hinge = m_hinges[static_cast<std::size_t>(h)];
+      m_incidence_slot[static_cast<std::size_t>(k)] = 4 * h + (std::find(hinge.begin(), hinge.end(), static_cast<Index>(i)) - hinge.begin());
+    }
+  m_rate.assign(count, 0.0);
+  m_node_grad.setZero(3, static_cast<Index>(m_incidence.size()));
   m_scatter = ScatterGather<4>(m_hinges, detail::index_span(m_hinges));
 }
 
@@ -205,18 +215,27 @@ void DihedralBending::validate(Index particle_count) const {
 }
 
 void DihedralBending::update_position_state(const Vectors3& x) {
-  // Without damping only the differential needs cached state, and it needs positions alone: skip the
-  // angle gradients (an atan2 and two normalisations per hinge, every solve).
+  // Without damping or implicit treatment only the differential needs cached state, and it needs
+  // positions alone: skip the angle gradients (an atan2 and two normalisations per hinge, every solve).
   m_x = x;
-  if (m_settings.damping == 0.0) return;
-  for (std::size_t h = 0; h < m_hinges.size(); ++h) {
-    Vec<double> p[4];
-    gather_hinge(x, m_hinges[h], p);
-    const HingeKinematics<double> k = hinge_kinematics(p);
-    for (std::size_t a = 0; a < 4; ++a) {
-      m_grad[h].col(static_cast<Index>(a)) = Vec3(k.grad[a].x, k.grad[a].y, k.grad[a].z);
+  if (m_settings.damping == 0.0 && !m_implicit) return;
+  parallel::for_ranges(static_cast<Index>(m_hinges.size()), [&](Index h0, Index h1) {
+    for (Index hi = h0; hi < h1; ++hi) {
+      const auto h = static_cast<std::size_t>(hi);
+      Vec<double> p[4];
+      gather_hinge(x, m_hinges[h], p);
+      const HingeKinematics<double> k = hinge_kinematics(p);
+      for (std::size_t a = 0; a < 4; ++a) m_grad[h].col(static_cast<Index>(a)) = Vec3(k.grad[a].x, k.grad[a].y, k.grad[a].z);
     }
-  }
+  });
+  // A node-major copy of the gradients, so the implicit products' gather pass streams through memory.
+  const auto nodes = static_cast<Index>(m_incidence_offsets.size()) - 1;
+  parallel::for_ranges(nodes, [&](Index i0, Index i1) {
+    for (Index k = m_incidence_offsets[static_cast<std::size_t>(i0)]; k < m_incidence_offsets[static_cast<std::size_t>(i1)]; ++k) {
+      const Index slot = m_incidence_slot[static_cast<std::size_t>(k)];
+      m_node_grad.col(k) = m_grad[static_cast<std::size_t>(slot / 4)].col(slot % 4);
+    }
+  });
 }
 
 double DihedralBending::potential_energy(const Vectors3& x) const {
@@ -282,6 +301,109 @@ void DihedralBending::add_damping_diagonal(VectorXd& diag) const {
       diag[m_hinges[h][a]] += c * m_weight[h] * m_grad[h].col(static_cast<Index>(a)).squaredNorm() / 3.0;
     }
   }
+}
+
+// f += -(c + 2 b k_b) w g (g . v): damping of the angle's rate plus b K+ v. Two passes, both
+// parallel and deterministic on any thread count: each hinge's scaled rate -c w (g . v), then each
+// node gathers g_a times its hinges' rates in hinge order (no per-hinge force slots to store).
+void DihedralBending::add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
+  const double c = m_settings.damping + 2.0 * b * m_settings.stiffness;
+  if (c == 0.0) return;
+  if (!m_implicit && m_settings.damping == 0.0) fail("dihedral bending: implicit products need set_implicit(true) first");
+  const double* pv = v.data();
+  const double* pg = m_grad.empty() ? nullptr : m_grad[0].data();  // 12 per hinge: g_0 .. g_3
+  double* rate = m_rate.data();
+  parallel::for_ranges(static_cast<Index>(m_hinges.size()), [&](Index h0, Index h1) {
+    for (Index h = h0; h < h1; ++h) {
+      const Hinge& hinge = m_hinges[static_cast<std::size_t>(h)];
+      const double* g = pg + 12 * h;
+      // d theta / dt = g . v, as a tree of four independent per-vertex terms (no serial chain of adds).
+      const double* v0 = pv + 3 * hinge[0];
+      const double* v1 = pv + 3 * hinge[1];
+      const double* v2 = pv + 3 * hinge[2];
+      const double* v3 = pv + 3 * hinge[3];
+      const double r0 = (g[0] * v0[0] + g[1] * v0[1]) + g[2] * v0[2];
+      const double r1 = (g[3] * v1[0] + g[4] * v1[1]) + g[5] * v1[2];
+      const double r2 = (g[6] * v2[0] + g[7] * v2[1]) + g[8] * v2[2];
+      const double r3 = (g[9] * v3[0] + g[10] * v3[1]) + g[11] * v3[2];
+      rate[h] = -c * m_weight[static_cast<std::size_t>(h)] * ((r0 + r1) + (r2 + r3));
+    }
+  });
+  double* pf = f.data();
+  const double* pn = m_node_grad.data();
+  const auto nodes = static_cast<Index>(m_incidence_offsets.size()) - 1;
+  parallel::for_ranges(nodes, [&](Index i0, Index i1) {
+    for (Index i = i0; i < i1; ++i) {
+      const Index begin = m_incidence_offsets[static_cast<std::size_t>(i)], end = m_incidence_offsets[static_cast<std::size_t>(i) + 1];
+      if (begin == end) continue;
+      // Even and odd entries in two accumulators (two independent chains of adds), then combined.
+      const Index* hinge_of = m_incidence.data();
+      double a0 = 0.0, a1 = 0.0, a2 = 0.0, b0 = 0.0, b1 = 0.0, b2 = 0.0;
+      Index k = begin;
+      for (; k + 1 < end; k += 2) {
+        const double ra = rate[hinge_of[k]], rb = rate[hinge_of[k + 1]];
+        const double* g = pn + 3 * k;
+        a0 += ra * g[0];
+        a1 += ra * g[1];
+        a2 += ra * g[2];
+        b0 += rb * g[3];
+        b1 += rb * g[4];
+        b2 += rb * g[5];
+      }
+      if (k < end) {
+        const double ra = rate[hinge_of[k]];
+        const double* g = pn + 3 * k;
+        a0 += ra * g[0];
+        a1 += ra * g[1];
+        a2 += ra * g[2];
+      }
+      pf[3 * i] += a0 + b0;
+      pf[3 * i + 1] += a1 + b1;
+      pf[3 * i + 2] += a2 + b2;
+    }
+  });
+}
+
+void DihedralBending::add_implicit_diagonal(double b, VectorXd& diag) const {
+  const double c = m_settings.damping + 2.0 * b * m_settings.stiffness;
+  if (c == 0.0) return;
+  for (std::size_t h = 0; h < m_hinges.size(); ++h)
+    for (std::size_t a = 0; a < 4; ++a)
+      diag[m_hinges[h][a]] += c * m_weight[h] * m_grad[h].col(static_cast<Index>(a)).squaredNorm() / 3.0;
+}
+
+// The diagonal blocks (c w g_a g_a^T per hinge and node) are gathered per node in hinge order.
+bool DihedralBending::add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const {
+  const double c = m_settings.damping + 2.0 * b * m_settings.stiffness;
+  if (c == 0.0) return true;
+  const auto nodes = static_cast<Index>(m_incidence_offsets.size()) - 1;
+  parallel::for_ranges(nodes, [&](Index i0, Index i1) {
+    for (Index i = i0; i < i1; ++i) {
+      Mat3 sum = Mat3::Zero();
+      for (Index k = m_incidence_offsets[static_cast<std::size_t>(i)]; k < m_incidence_offsets[static_cast<std::size_t>(i) + 1]; ++k) {
+        const Index slot = m_incidence_slot[static_cast<std::size_t>(k)];
+        const Vec3 g = m_grad[static_cast<std::size_t>(slot / 4)].col(slot % 4);
+        sum += (c * m_weight[static_cast<std::size_t>(slot / 4)]) * (g * g.transpose());
+      }
+      Eigen::Map<Mat3>(blocks.col(i).data()) += sum;
+    }
+  });
+  return true;
+}
+
+// Each hinge couples its four nodes pairwise: -(c + 2 b k_b) w g_a g_b^T for a < b (six pairs).
+bool DihedralBending::visit_implicit_pair_blocks(double b, PairBlockSink& sink) const {
+  const double c = m_settings.damping + 2.0 * b * m_settings.stiffness;
+  for (std::size_t h = 0; h < m_hinges.size(); ++h) {
+    const Mat34& g = m_grad[h];
+    const double scale = -c * m_weight[h];
+    for (Index a = 0; a < 4; ++a)
+      for (Index bb = a + 1; bb < 4; ++bb) {
+        const Mat3 block = scale * (g.col(a) * g.col(bb).transpose());
+        sink.add(m_hinges[h][static_cast<std::size_t>(a)], m_hinges[h][static_cast<std::size_t>(bb)], block);
+      }
+  }
+  return true;
 }
 
 // Conservative bound from the rest linearisation (exact per hinge, see the constructor; summed per

@@ -269,17 +269,26 @@ void EdgeSprings::add_implicit_diagonal(double b, VectorXd& diag) const {
 // Both ends' diagonal block is b_d d d^T + b k (d d^T + t+ (I - d d^T)), the edge's implicit
 // product matrix (the product's coupling block is its negative).
 bool EdgeSprings::add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const {
-  const double bk = b * m_settings.stiffness;
-  const double along_scale = m_settings.damping + bk;
-  if (along_scale == 0.0) return true;
+  if (m_settings.damping + b * m_settings.stiffness == 0.0) return true;
   for (std::size_t e = 0; e < m_edges.size(); ++e) {
-    const auto ei = static_cast<Index>(e);
-    const Vec3 d = m_direction.col(ei);
-    const double transverse = bk * m_implicit_state(ei, 3);
-    Mat3 block = (along_scale - transverse) * (d * d.transpose());
-    block.diagonal().array() += transverse;
+    const Mat3 block = implicit_block(static_cast<Index>(e), b);
     for (Index i : m_edges[e]) blocks.col(i) += Eigen::Map<const Eigen::Matrix<double, 9, 1>>(block.data());
   }
+  return true;
+}
+
+Mat3 EdgeSprings::implicit_block(Index e, double b) const {
+  const double bk = b * m_settings.stiffness;
+  const Vec3 d = m_direction.col(e);
+  const double transverse = bk * m_implicit_state(e, 3);
+  Mat3 block = (m_settings.damping + bk - transverse) * (d * d.transpose());
+  block.diagonal().array() += transverse;
+  return block;
+}
+
+// The coupling block of edge (i, j) is the edge's implicit product matrix itself (f_i += B (v_j - v_i)).
+bool EdgeSprings::visit_implicit_pair_blocks(double b, PairBlockSink& sink) const {
+  for (std::size_t e = 0; e < m_edges.size(); ++e) sink.add(m_edges[e][0], m_edges[e][1], implicit_block(static_cast<Index>(e), b));
   return true;
 }
 

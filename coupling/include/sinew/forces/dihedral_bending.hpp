@@ -12,10 +12,20 @@ namespace sinew {
 struct DihedralBendingSettings {
   double stiffness = 1.0e-3;  ///< k_b [J] (N m); finite, >= 0
   double damping = 0.0;       ///< c [J s], damps the dihedral angle's rate; finite, >= 0
+  /// Offer the definite differential K+ below, so that StepSettings::implicit_elasticity treats
+  /// bending implicitly too. Off, bending stays explicit and its stable step limits the substep
+  /// (cheaper per step: each CG iteration then skips the hinges).
+  bool implicit = false;
 };
 
 /// Psi = k_b * 3 |e0|^2 / (A1 + A2) * (theta - theta0)^2 per hinge (Grinspun et al. 2003), with
 /// rest edge length |e0|, rest wing areas A1, A2 and rest angle theta0 (curved rest shapes allowed).
+///
+/// Definite differential (for StepSettings::implicit_elasticity): with g = d theta / dx (3 x 4) and
+/// w = 3 |e0|^2 / (A1 + A2), the exact differential is -2 k_b w (g g^T + (theta - theta0) d^2 theta/dx^2);
+/// K+ = -2 k_b w g g^T keeps the Gauss-Newton part, rank one per hinge and negative semi-definite, and
+/// equals the exact differential wherever the hinge is at its rest angle. The dropped term is what
+/// makes a bent hinge's exact differential indefinite.
 ///
 /// Sign convention: with e = x1 - x0, n1 = e x (x2 - x0) (the normal of triangle (x0, x1, x2)) and
 /// n2 = (x3 - x0) x e, theta = atan2((n1 x n2) . e / |e|, n1 . n2) in (-pi, pi]. theta = 0 when
@@ -49,6 +59,12 @@ class DihedralBending final : public Force {
   void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
   void add_damping_diagonal(VectorXd& diag) const override;
   bool has_damping() const override { return m_settings.damping > 0.0; }
+  bool has_definite_differentials() const override { return m_settings.implicit; }
+  void set_implicit(bool implicit) override { m_implicit = implicit; }
+  void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
+  void add_implicit_diagonal(double b, VectorXd& diag) const override;
+  bool add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const override;
+  bool visit_implicit_pair_blocks(double b, PairBlockSink& sink) const override;
   double stable_dt(const VectorXd& m_eff) const override;
 
   const std::vector<Hinge>& hinges() const { return m_hinges; }
@@ -65,7 +81,11 @@ class DihedralBending final : public Force {
   std::vector<std::array<double, 4>> m_dt_weights;  ///< stable_dt weights w_{e,a}
   std::vector<Index> m_incidence_offsets;
   std::vector<Index> m_incidence;
+  std::vector<Index> m_incidence_slot;  ///< per incidence entry: 4 h + a, node i = hinge h's vertex a
+  mutable std::vector<double> m_rate;   ///< implicit products' scratch: -c w (g . v) per hinge
+  Vectors3 m_node_grad;                 ///< g_a per incidence entry (node-major copy of m_grad)
   // Position state: hinge vertex positions (for the differential) and d theta / dx (for damping).
+  bool m_implicit = false;  // set_implicit: the angle gradients are needed even without damping
   Vectors3 m_x;  // positions of the cached state (a plain copy: cheaper than per-hinge stencils)
   mutable ScatterGather<4> m_scatter;  // per-hinge forces on its four nodes, gathered per node
   std::vector<Eigen::Matrix<double, 3, 4>> m_grad;

@@ -36,6 +36,7 @@ class EdgeSprings final : public Force {
   void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
   void add_implicit_diagonal(double b, VectorXd& diag) const override;
   bool add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const override;
+  bool visit_implicit_pair_blocks(double b, PairBlockSink& sink) const override;
   double stable_dt(const VectorXd& m_eff) const override;
 
   const std::vector<Edge>& edges() const { return m_edges; }
@@ -45,6 +46,8 @@ class EdgeSprings final : public Force {
  private:
   template <typename EdgeForce>
   void scatter_gather(Vectors3& f, EdgeForce&& edge_force) const;
+  /// Edge e's implicit product matrix b_d d d^T + b k (d d^T + t+ (I - d d^T)) at the cached state.
+  Mat3 implicit_block(Index e, double b) const;
 
   std::vector<Edge> m_edges;
   EdgeSpringsSettings m_settings;

@@ -1,0 +1,494 @@
+#include "multigrid.hpp"
+
+#include "sinew/parallel.hpp"
+
+#include <algorithm>
+#include <cstdint>
+#include <numeric>
+
+namespace sinew {
+
+namespace {
+
+using Blocks = AggregationMultigrid::Blocks;
+
+Eigen::Map<Mat3> block_at(Blocks& b, Index k) { return Eigen::Map<Mat3>(b.col(k).data()); }
+Eigen::Map<const Mat3> block_at(const Blocks& b, Index k) { return Eigen::Map<const Mat3>(b.col(k).data()); }
+
+/// One round of pairwise matching: each node in index order, if still unmatched, takes its strongest
+/// unmatched neighbour (ties to the lowest index); a node without one stays alone.
+Index match_pairs(Index n, const std::vector<std::array<Index, 2>>& pairs, const std::vector<double>& strength,
+                  std::vector<Index>& agg) {
+  // Adjacency (CSR, neighbours ascending because pairs are sorted by (i, j) and added both ways).
+  std::vector<Index> offset(static_cast<std::size_t>(n) + 1, 0);
+  for (const auto& p : pairs) {
+    ++offset[static_cast<std::size_t>(p[0]) + 1];
+    ++offset[static_cast<std::size_t>(p[1]) + 1];
+  }
+  for (std::size_t i = 1; i < offset.size(); ++i) offset[i] += offset[i - 1];
+  std::vector<Index> nbr(static_cast<std::size_t>(offset.back()));
+  std::vector<double> s(nbr.size());
+  std::vector<Index> fill(offset.begin(), offset.end() - 1);
+  for (std::size_t k = 0; k < pairs.size(); ++k) {
+    const Index i = pairs[k][0], j = pairs[k][1];
+    nbr[static_cast<std::size_t>(fill[static_cast<std::size_t>(i)])] = j;
+    s[static_cast<std::size_t>(fill[static_cast<std::size_t>(i)]++)] = strength[k];
+    nbr[static_cast<std::size_t>(fill[static_cast<std::size_t>(j)])] = i;
+    s[static_cast<std::size_t>(fill[static_cast<std::size_t>(j)]++)] = strength[k];
+  }
+  agg.assign(static_cast<std::size_t>(n), -1);
+  Index count = 0;
+  for (Index i = 0; i < n; ++i) {
+    if (agg[static_cast<std::size_t>(i)] >= 0) continue;
+    Index best = -1;
+    double best_s = 0.0;
+    for (Index k = offset[static_cast<std::size_t>(i)]; k < offset[static_cast<std::size_t>(i) + 1]; ++k) {
+      const Index j = nbr[static_cast<std::size_t>(k)];
+      const double sj = s[static_cast<std::size_t>(k)];
+      if (agg[static_cast<std::size_t>(j)] < 0 && (sj > best_s || (sj == best_s && best >= 0 && j < best))) {
+        best = j;
+        best_s = sj;
+      }
+    }
+    agg[static_cast<std::size_t>(i)] = count;
+    if (best >= 0) agg[static_cast<std::size_t>(best)] = count;
+    ++count;
+  }
+  return count;
+}
+
+/// The pairs between distinct aggregates, merged and sorted, with the summed strengths.
+void merge_pairs(const std::vector<std::array<Index, 2>>& pairs, const std::vector<double>& strength,
+                 const std::vector<Index>& agg, std::vector<std::array<Index, 2>>& out, std::vector<double>& out_strength) {
+  std::vector<std::pair<std::array<Index, 2>, double>> mapped;
+  mapped.reserve(pairs.size());
+  for (std::size_t k = 0; k < pairs.size(); ++k) {
+    Index a = agg[static_cast<std::size_t>(pairs[k][0])], b = agg[static_cast<std::size_t>(pairs[k][1])];
+    if (a == b) continue;
+    if (a > b) std::swap(a, b);
+    mapped.push_back({{a, b}, strength[k]});
+  }
+  std::sort(mapped.begin(), mapped.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+  out.clear();
+  out_strength.clear();
+  for (const auto& m : mapped) {
+    if (!out.empty() && out.back() == m.first) {
+      out_strength.back() += m.second;
+    } else {
+      out.push_back(m.first);
+      out_strength.push_back(m.second);
+    }
+  }
+}
+
+}  // namespace
+
+void AggregationMultigrid::reset() {
+  m_built = false;
+  m_omega_ready = false;
+  m_recording = false;
+  m_levels.clear();
+  m_agg0.clear();
+  m_plan0.clear();
+  m_recorded_pairs.clear();
+  m_recorded_blocks.clear();
+}
+
+Index AggregationMultigrid::level_size(int l) const {
+  if (l == 0) return static_cast<Index>(std::count_if(m_agg0.begin(), m_agg0.end(), [](Index a) { return a >= 0; }));
+  return m_levels[static_cast<std::size_t>(l - 1)].n;
+}
+
+Index AggregationMultigrid::aggregate(Index n, const std::vector<std::array<Index, 2>>& pairs, const std::vector<double>& strength,
+                                      std::vector<Index>& agg) {
+  std::vector<Index> first, second;
+  const Index half = match_pairs(n, pairs, strength, first);
+  std::vector<std::array<Index, 2>> mid_pairs;
+  std::vector<double> mid_strength;
+  merge_pairs(pairs, strength, first, mid_pairs, mid_strength);
+  const Index count = match_pairs(half, mid_pairs, mid_strength, second);
+  agg.resize(static_cast<std::size_t>(n));
+  for (Index i = 0; i < n; ++i) agg[static_cast<std::size_t>(i)] = second[static_cast<std::size_t>(first[static_cast<std::size_t>(i)])];
+  return count;
+}
+
+void AggregationMultigrid::coarse_pairs(const std::vector<std::array<Index, 2>>& pairs, const std::vector<Index>& agg,
+                                        std::vector<std::array<Index, 2>>& coarse, std::vector<Index>& plan) {
+  std::vector<std::array<Index, 2>> keys;
+  keys.reserve(pairs.size());
+  for (const auto& p : pairs) {
+    Index a = agg[static_cast<std::size_t>(p[0])], b = agg[static_cast<std::size_t>(p[1])];
+    if (a < 0 || b < 0 || a == b) continue;
+    keys.push_back({std::min(a, b), std::max(a, b)});
+  }
+  std::sort(keys.begin(), keys.end());
+  keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+  coarse = keys;
+  plan.resize(pairs.size());
+  for (std::size_t k = 0; k < pairs.size(); ++k) {
+    const Index a = pairs[k][0] < 0 ? -1 : agg[static_cast<std::size_t>(pairs[k][0])];
+    const Index b = pairs[k][1] < 0 ? -1 : agg[static_cast<std::size_t>(pairs[k][1])];
+    if (a < 0 || b < 0) {
+      plan[k] = kSkip;
+    } else if (a == b) {
+      plan[k] = encode_diag(a);
+    } else {
+      const std::array<Index, 2> key{std::min(a, b), std::max(a, b)};
+      const auto it = std::lower_bound(coarse.begin(), coarse.end(), key);
+      plan[k] = encode_pair(it - coarse.begin(), a > b);
+    }
+  }
+}
+
+void AggregationMultigrid::build_rows(Level& level) {
+  level.row_offset.assign(static_cast<std::size_t>(level.n) + 1, 0);
+  for (const auto& p : level.pairs) {
+    ++level.row_offset[static_cast<std::size_t>(p[0]) + 1];
+    ++level.row_offset[static_cast<std::size_t>(p[1]) + 1];
+  }
+  for (std::size_t i = 1; i < level.row_offset.size(); ++i) level.row_offset[i] += level.row_offset[i - 1];
+  const auto entries = static_cast<std::size_t>(level.row_offset.back());
+  level.row_col.resize(entries);
+  level.row_pair.resize(entries);
+  level.row_transposed.resize(entries);
+  std::vector<Index> fill(level.row_offset.begin(), level.row_offset.end() - 1);
+  for (std::size_t k = 0; k < level.pairs.size(); ++k) {
+    const Index i = level.pairs[k][0], j = level.pairs[k][1];
+    auto put = [&](Index row, Index col, bool transposed) {
+      const auto e = static_cast<std::size_t>(fill[static_cast<std::size_t>(row)]++);
+      level.row_col[e] = col;
+      level.row_pair[e] = static_cast<Index>(k);
+      level.row_transposed[e] = transposed ? 1 : 0;
+    };
+    put(i, j, false);  // row i: S_ij x_j
+    put(j, i, true);   // row j: S_ji x_i = S_ij^T x_i
+  }
+}
+
+void AggregationMultigrid::begin(const VectorXd& unknown, const Blocks& diag, double scale) {
+  m_scale = scale;
+  m_cursor = 0;
+  if (!m_built) {
+    m_particles = unknown.size();
+    m_recording = true;
+    m_unknown0 = unknown;
+    m_recorded_pairs.clear();
+    m_recorded_blocks.clear();
+    m_diag0 = diag;
+    return;
+  }
+  if (unknown.size() != m_particles) fail("multigrid: ", unknown.size(), " particles, built for ", m_particles);
+  Level& l1 = m_levels.front();
+  l1.diag.setZero();
+  l1.pair_block.setZero();
+  for (Index i = 0; i < m_particles; ++i) {
+    const Index a = m_agg0[static_cast<std::size_t>(i)];
+    if (a >= 0) l1.diag.col(a) += diag.col(i);
+  }
+}
+
+void AggregationMultigrid::add_to_level1(Index code, const Mat3& block) {
+  if (code == kSkip) return;
+  Level& l1 = m_levels.front();
+  if (code < 0) {
+    block_at(l1.diag, -2 - code) += m_scale * (block + block.transpose());
+  } else if (code & 1) {
+    block_at(l1.pair_block, code >> 1) += m_scale * block.transpose();
+  } else {
+    block_at(l1.pair_block, code >> 1) += m_scale * block;
+  }
+}
+
+void AggregationMultigrid::add(Index i, Index j, const Mat3& block) {
+  if (m_recording) {
+    m_recorded_pairs.push_back({i, j});
+    m_recorded_blocks.push_back(block);
+    return;
+  }
+  if (m_cursor >= m_plan0.size()) fail("multigrid: the forces passed more pair blocks than when the hierarchy was built");
+  add_to_level1(m_plan0[m_cursor++], block);
+}
+
+void AggregationMultigrid::build(const VectorXd& unknown) {
+  // Level 0: the unknown particles, their pairs (merged, with the summed block norms as strengths).
+  const Index n = unknown.size();
+  std::vector<Index> local(static_cast<std::size_t>(n), -1);
+  Index n0 = 0;
+  for (Index i = 0; i < n; ++i)
+    if (unknown[i] > 0.0) local[static_cast<std::size_t>(i)] = n0++;
+  std::vector<std::array<Index, 2>> raw;
+  std::vector<double> raw_strength;
+  raw.reserve(m_recorded_pairs.size());
+  for (std::size_t k = 0; k < m_recorded_pairs.size(); ++k) {
+    const Index a = local[static_cast<std::size_t>(m_recorded_pairs[k][0])], b = local[static_cast<std::size_t>(m_recorded_pairs[k][1])];
+    if (a < 0 || b < 0 || a == b) continue;
+    raw.push_back({std::min(a, b), std::max(a, b)});
+    raw_strength.push_back(m_recorded_blocks[k].norm());
+  }
+  std::vector<Index> identity(static_cast<std::size_t>(n0));
+  std::iota(identity.begin(), identity.end(), Index(0));
+  std::vector<std::array<Index, 2>> pairs0;
+  std::vector<double> strength0;
+  merge_pairs(raw, raw_strength, identity, pairs0, strength0);
+
+  std::vector<Index> agg_local;
+  Index n1 = aggregate(n0, pairs0, strength0, agg_local);
+  m_agg0.assign(static_cast<std::size_t>(n), -1);
+  for (Index i = 0; i < n; ++i)
+    if (local[static_cast<std::size_t>(i)] >= 0) m_agg0[static_cast<std::size_t>(i)] = agg_local[static_cast<std::size_t>(local[static_cast<std::size_t>(i)])];
+
+  // Level 1 and its plan from the recorded pairs (in particle numbering, -1 off the unknowns).
+  m_levels.clear();
+  m_levels.emplace_back();
+  {
+    Level& l1 = m_levels.back();
+    l1.n = n1;
+    std::vector<std::array<Index, 2>> recorded(m_recorded_pairs.size());
+    for (std::size_t k = 0; k < recorded.size(); ++k)
+      recorded[k] = {m_recorded_pairs[k][0], m_recorded_pairs[k][1]};
+    coarse_pairs(recorded, m_agg0, l1.pairs, m_plan0);
+  }
+  auto allocate = [](Level& level) {
+    level.diag.setZero(9, level.n);
+    level.inverse.setZero(9, level.n);
+    level.pair_block.setZero(9, static_cast<Index>(level.pairs.size()));
+    level.x.setZero(3, level.n);
+    level.b.setZero(3, level.n);
+    level.t.setZero(3, level.n);
+    build_rows(level);
+  };
+  allocate(m_levels.back());
+  // Level 1's blocks from the recorded update, so that its strengths can choose the next aggregates.
+  m_built = true;
+  m_recording = false;
+  {
+    Level& l1 = m_levels.front();
+    for (Index i = 0; i < n; ++i) {
+      const Index a = m_agg0[static_cast<std::size_t>(i)];
+      if (a >= 0) l1.diag.col(a) += m_diag0.col(i);
+    }
+    for (std::size_t k = 0; k < m_plan0.size(); ++k) add_to_level1(m_plan0[k], m_recorded_blocks[k]);
+  }
+  // Coarser levels, each aggregated from the blocks of the one above.
+  while (static_cast<int>(m_levels.size()) + 1 < kMaxLevels && m_levels.back().n > kCoarsestNodes) {
+    const int l = static_cast<int>(m_levels.size()) - 1;
+    Level& fine = m_levels[static_cast<std::size_t>(l)];
+    std::vector<double> strength(fine.pairs.size());
+    for (std::size_t k = 0; k < fine.pairs.size(); ++k) strength[k] = block_at(fine.pair_block, static_cast<Index>(k)).norm();
+    std::vector<Index> agg;
+    const Index coarse_n = aggregate(fine.n, fine.pairs, strength, agg);
+    if (coarse_n * 5 > fine.n * 4) break;  // coarsening stalled (weakly coupled nodes): stop here
+    Level next;
+    next.n = coarse_n;
+    coarse_pairs(fine.pairs, agg, next.pairs, fine.pair_plan);
+    fine.agg = std::move(agg);
+    m_levels.push_back(std::move(next));
+    allocate(m_levels.back());
+    assemble_next(l);
+  }
+  const Index dense = 3 * m_levels.back().n;
+  m_dense.setZero(dense, dense);
+  m_dense_rhs.setZero(dense);
+  m_coarsest = Eigen::LLT<Eigen::MatrixXd>(dense);
+  m_recorded_pairs = {};
+  m_recorded_blocks = {};
+  m_diag0.resize(9, 0);
+}
+
+void AggregationMultigrid::assemble_next(int l) {
+  const Level& fine = m_levels[static_cast<std::size_t>(l)];
+  Level& coarse = m_levels[static_cast<std::size_t>(l) + 1];
+  coarse.diag.setZero();
+  coarse.pair_block.setZero();
+  for (Index i = 0; i < fine.n; ++i) coarse.diag.col(fine.agg[static_cast<std::size_t>(i)]) += fine.diag.col(i);
+  for (std::size_t k = 0; k < fine.pairs.size(); ++k) {
+    const Index code = fine.pair_plan[k];
+    const auto block = block_at(fine.pair_block, static_cast<Index>(k));
+    if (code < 0) {
+      block_at(coarse.diag, -2 - code) += block + block.transpose();
+    } else if (code & 1) {
+      block_at(coarse.pair_block, code >> 1) += block.transpose();
+    } else {
+      block_at(coarse.pair_block, code >> 1) += block;
+    }
+  }
+}
+
+void AggregationMultigrid::invert_diagonals(Level& level) const {
+  for (Index i = 0; i < level.n; ++i) {
+    const Mat3 d = block_at(level.diag, i);
+    block_at(level.inverse, i) = d.inverse();
+  }
+}
+
+void AggregationMultigrid::end() {
+  if (m_recording) {
+    build(m_unknown0);  // chooses the aggregates and assembles every level from this update
+    m_unknown0.resize(0);
+  } else {
+    if (m_cursor != m_plan0.size())
+      fail("multigrid: the forces passed ", m_cursor, " pair blocks, ", m_plan0.size(), " when the hierarchy was built");
+    for (int l = 0; l + 1 < static_cast<int>(m_levels.size()); ++l) assemble_next(l);
+  }
+  for (std::size_t l = 0; l + 1 < m_levels.size(); ++l) invert_diagonals(m_levels[l]);
+  if (!m_omega_ready) estimate_omegas();
+  // The coarsest level, dense: diagonal blocks and both triangles of every pair.
+  const Level& last = m_levels.back();
+  m_dense.setZero();
+  for (Index i = 0; i < last.n; ++i) m_dense.block<3, 3>(3 * i, 3 * i) = block_at(last.diag, i);
+  for (std::size_t k = 0; k < last.pairs.size(); ++k) {
+    const Index i = last.pairs[k][0], j = last.pairs[k][1];
+    const auto block = block_at(last.pair_block, static_cast<Index>(k));
+    m_dense.block<3, 3>(3 * i, 3 * j) += block;
+    m_dense.block<3, 3>(3 * j, 3 * i) += block.transpose();
+  }
+  m_coarsest.compute(m_dense);
+  if (m_coarsest.info() != Eigen::Success) fail("multigrid: the coarsest operator (", last.n, " nodes) is not positive definite");
+}
+
+void AggregationMultigrid::matvec(const Level& level, const Vectors3& x, Vectors3& y) const {
+  const double* px = x.data();
+  double* py = y.data();
+  const double* pd = level.diag.data();
+  const double* pb = level.pair_block.data();
+  parallel::for_ranges(level.n, [&](Index i0, Index i1) {
+    for (Index i = i0; i < i1; ++i) {
+      const double* d = pd + 9 * i;
+      const double* xi = px + 3 * i;
+      double y0 = (d[0] * xi[0] + d[3] * xi[1]) + d[6] * xi[2];
+      double y1 = (d[1] * xi[0] + d[4] * xi[1]) + d[7] * xi[2];
+      double y2 = (d[2] * xi[0] + d[5] * xi[1]) + d[8] * xi[2];
+      for (Index e = level.row_offset[static_cast<std::size_t>(i)]; e < level.row_offset[static_cast<std::size_t>(i) + 1]; ++e) {
+        const double* B = pb + 9 * level.row_pair[static_cast<std::size_t>(e)];
+        const double* xj = px + 3 * level.row_col[static_cast<std::size_t>(e)];
+        if (level.row_transposed[static_cast<std::size_t>(e)]) {  // S_ij^T x_j: rows of S_ij are B's columns
+          y0 += (B[0] * xj[0] + B[1] * xj[1]) + B[2] * xj[2];
+          y1 += (B[3] * xj[0] + B[4] * xj[1]) + B[5] * xj[2];
+          y2 += (B[6] * xj[0] + B[7] * xj[1]) + B[8] * xj[2];
+        } else {
+          y0 += (B[0] * xj[0] + B[3] * xj[1]) + B[6] * xj[2];
+          y1 += (B[1] * xj[0] + B[4] * xj[1]) + B[7] * xj[2];
+          y2 += (B[2] * xj[0] + B[5] * xj[1]) + B[8] * xj[2];
+        }
+      }
+      py[3 * i] = y0;
+      py[3 * i + 1] = y1;
+      py[3 * i + 2] = y2;
+    }
+  });
+}
+
+namespace {
+
+/// x (+)= omega D^-1 b per node, D^-1 given as 9 x n column-major blocks.
+void jacobi(Index n, double omega, const Blocks& inverse, const Vectors3& b, Vectors3& x, bool accumulate) {
+  const double* pi = inverse.data();
+  const double* pb = b.data();
+  double* px = x.data();
+  parallel::for_ranges(n, [&](Index i0, Index i1) {
+    for (Index i = i0; i < i1; ++i) {
+      const double* B = pi + 9 * i;
+      const double b0 = pb[3 * i], b1 = pb[3 * i + 1], b2 = pb[3 * i + 2];
+      const double z0 = omega * ((B[0] * b0 + B[3] * b1) + B[6] * b2);
+      const double z1 = omega * ((B[1] * b0 + B[4] * b1) + B[7] * b2);
+      const double z2 = omega * ((B[2] * b0 + B[5] * b1) + B[8] * b2);
+      if (accumulate) {
+        px[3 * i] += z0;
+        px[3 * i + 1] += z1;
+        px[3 * i + 2] += z2;
+      } else {
+        px[3 * i] = z0;
+        px[3 * i + 1] = z1;
+        px[3 * i + 2] = z2;
+      }
+    }
+  });
+}
+
+/// t = b - t, over n nodes.
+void residual_in_place(Index n, const Vectors3& b, Vectors3& t) {
+  parallel::for_ranges(n, [&](Index i0, Index i1) { t.middleCols(i0, i1 - i0) = b.middleCols(i0, i1 - i0) - t.middleCols(i0, i1 - i0); });
+}
+
+}  // namespace
+
+namespace {
+
+/// A fixed pseudo-random start vector in [-1, 1) for the power iterations (the same every run).
+void start_vector(Vectors3& v) {
+  std::uint64_t state = 0x9E3779B97F4A7C15ull;
+  for (Index i = 0; i < v.cols(); ++i)
+    for (Index c = 0; c < 3; ++c) {
+      state = state * 6364136223846793005ull + 1442695040888963407ull;
+      v(c, i) = static_cast<double>(state >> 11) * 0x1.0p-53 * 2.0 - 1.0;
+    }
+}
+
+constexpr int kPowerIterations = 15;
+/// omega = kSmoothing / lambda_max(D^-1 S): the smoothing sweep scales the stiffest mode's error by
+/// 1 - kSmoothing, safely inside the (0, 2) that keeps the V-cycle positive definite even when the
+/// power iterations underestimate lambda_max or the operator stiffens later.
+constexpr double kSmoothing = 1.1;
+
+}  // namespace
+
+// lambda_max(D^-1 S) of every smoothed level by power iterations, once, from the first operator
+// (like the aggregates): the damping that makes block Jacobi a smoother there.
+void AggregationMultigrid::estimate_omegas() {
+  for (std::size_t l = 0; l + 1 < m_levels.size(); ++l) {
+    Level& level = m_levels[l];
+    Vectors3& v = level.x;
+    start_vector(v);
+    double lambda = 0.0;
+    for (int k = 0; k < kPowerIterations; ++k) {
+      const double norm = v.norm();
+      if (!(norm > 0.0)) break;
+      v /= norm;
+      matvec(level, v, level.t);
+      jacobi(level.n, 1.0, level.inverse, level.t, v, false);
+      lambda = v.norm();
+    }
+    level.omega = lambda > 0.0 ? kSmoothing / lambda : 0.5;
+  }
+  m_omega_ready = true;
+}
+
+void AggregationMultigrid::cycle(int k) {
+  Level& level = m_levels[static_cast<std::size_t>(k)];
+  if (k + 1 == static_cast<int>(m_levels.size())) {
+    m_dense_rhs = Eigen::Map<const VectorXd>(level.b.data(), 3 * level.n);
+    m_coarsest.solveInPlace(m_dense_rhs);
+    Eigen::Map<VectorXd>(level.x.data(), 3 * level.n) = m_dense_rhs;
+    return;
+  }
+  Level& next = m_levels[static_cast<std::size_t>(k) + 1];
+  jacobi(level.n, level.omega, level.inverse, level.b, level.x, false);  // pre-smoothing from zero
+  matvec(level, level.x, level.t);
+  residual_in_place(level.n, level.b, level.t);
+  next.b.setZero();
+  for (Index i = 0; i < level.n; ++i) next.b.col(level.agg[static_cast<std::size_t>(i)]) += level.t.col(i);
+  cycle(k + 1);
+  for (Index i = 0; i < level.n; ++i) level.x.col(i) += next.x.col(level.agg[static_cast<std::size_t>(i)]);
+  matvec(level, level.x, level.t);  // post-smoothing
+  residual_in_place(level.n, level.b, level.t);
+  jacobi(level.n, level.omega, level.inverse, level.t, level.x, true);
+}
+
+void AggregationMultigrid::apply(const Vectors3& r, Vectors3& z, const Blocks& inverse0) {
+  if (!m_built) fail("multigrid: apply before the first update");
+  const Index n = m_particles;
+  Level& l1 = m_levels.front();
+  jacobi(n, kOmega0, inverse0, r, z, false);  // z is zero off the unknowns (inverse0 is)
+  l1.b.setZero();
+  for (Index i = 0; i < n; ++i) {
+    const Index a = m_agg0[static_cast<std::size_t>(i)];
+    if (a >= 0) l1.b.col(a) += r.col(i);
+  }
+  cycle(0);
+  for (Index i = 0; i < n; ++i) {
+    const Index a = m_agg0[static_cast<std::size_t>(i)];
+    if (a >= 0) z.col(i) += l1.x.col(a);
+  }
+}
+
+}  // namespace sinew
