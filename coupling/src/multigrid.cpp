@@ -140,28 +140,34 @@ void AggregationMultigrid::coarse_pairs(const std::vector<std::array<Index, 2>>&
   }
 }
 
+// Each row lists its entries S_ij x_j with i < j (blocks as stored) before those with i > j
+// (transposed), so the matvec runs two branch-free loops per row.
 void AggregationMultigrid::build_rows(Level& level) {
   level.row_offset.assign(static_cast<std::size_t>(level.n) + 1, 0);
+  std::vector<Index> upper(static_cast<std::size_t>(level.n), 0);
   for (const auto& p : level.pairs) {
     ++level.row_offset[static_cast<std::size_t>(p[0]) + 1];
     ++level.row_offset[static_cast<std::size_t>(p[1]) + 1];
+    ++upper[static_cast<std::size_t>(p[0])];
   }
   for (std::size_t i = 1; i < level.row_offset.size(); ++i) level.row_offset[i] += level.row_offset[i - 1];
   const auto entries = static_cast<std::size_t>(level.row_offset.back());
   level.row_col.resize(entries);
   level.row_pair.resize(entries);
-  level.row_transposed.resize(entries);
-  std::vector<Index> fill(level.row_offset.begin(), level.row_offset.end() - 1);
+  level.row_mid.resize(static_cast<std::size_t>(level.n));
+  std::vector<Index> fill_upper(level.row_offset.begin(), level.row_offset.end() - 1), fill_lower(static_cast<std::size_t>(level.n));
+  for (Index i = 0; i < level.n; ++i) {
+    level.row_mid[static_cast<std::size_t>(i)] = level.row_offset[static_cast<std::size_t>(i)] + upper[static_cast<std::size_t>(i)];
+    fill_lower[static_cast<std::size_t>(i)] = level.row_mid[static_cast<std::size_t>(i)];
+  }
   for (std::size_t k = 0; k < level.pairs.size(); ++k) {
     const Index i = level.pairs[k][0], j = level.pairs[k][1];
-    auto put = [&](Index row, Index col, bool transposed) {
-      const auto e = static_cast<std::size_t>(fill[static_cast<std::size_t>(row)]++);
-      level.row_col[e] = col;
-      level.row_pair[e] = static_cast<Index>(k);
-      level.row_transposed[e] = transposed ? 1 : 0;
-    };
-    put(i, j, false);  // row i: S_ij x_j
-    put(j, i, true);   // row j: S_ji x_i = S_ij^T x_i
+    const auto e = static_cast<std::size_t>(fill_upper[static_cast<std::size_t>(i)]++);  // row i: S_ij x_j
+    level.row_col[e] = j;
+    level.row_pair[e] = static_cast<Index>(k);
+    const auto t = static_cast<std::size_t>(fill_lower[static_cast<std::size_t>(j)]++);  // row j: S_ij^T x_i
+    level.row_col[t] = i;
+    level.row_pair[t] = static_cast<Index>(k);
   }
 }
 
@@ -358,18 +364,20 @@ void AggregationMultigrid::matvec(const Level& level, const Vectors3& x, Vectors
       double y0 = (d[0] * xi[0] + d[3] * xi[1]) + d[6] * xi[2];
       double y1 = (d[1] * xi[0] + d[4] * xi[1]) + d[7] * xi[2];
       double y2 = (d[2] * xi[0] + d[5] * xi[1]) + d[8] * xi[2];
-      for (Index e = level.row_offset[static_cast<std::size_t>(i)]; e < level.row_offset[static_cast<std::size_t>(i) + 1]; ++e) {
+      const Index mid = level.row_mid[static_cast<std::size_t>(i)];
+      for (Index e = level.row_offset[static_cast<std::size_t>(i)]; e < mid; ++e) {
         const double* B = pb + 9 * level.row_pair[static_cast<std::size_t>(e)];
         const double* xj = px + 3 * level.row_col[static_cast<std::size_t>(e)];
-        if (level.row_transposed[static_cast<std::size_t>(e)]) {  // S_ij^T x_j: rows of S_ij are B's columns
-          y0 += (B[0] * xj[0] + B[1] * xj[1]) + B[2] * xj[2];
-          y1 += (B[3] * xj[0] + B[4] * xj[1]) + B[5] * xj[2];
-          y2 += (B[6] * xj[0] + B[7] * xj[1]) + B[8] * xj[2];
-        } else {
-          y0 += (B[0] * xj[0] + B[3] * xj[1]) + B[6] * xj[2];
-          y1 += (B[1] * xj[0] + B[4] * xj[1]) + B[7] * xj[2];
-          y2 += (B[2] * xj[0] + B[5] * xj[1]) + B[8] * xj[2];
-        }
+        y0 += (B[0] * xj[0] + B[3] * xj[1]) + B[6] * xj[2];
+        y1 += (B[1] * xj[0] + B[4] * xj[1]) + B[7] * xj[2];
+        y2 += (B[2] * xj[0] + B[5] * xj[1]) + B[8] * xj[2];
+      }
+      for (Index e = mid; e < level.row_offset[static_cast<std::size_t>(i) + 1]; ++e) {  // S_ij^T x_j: rows of S_ij^T are B's columns
+        const double* B = pb + 9 * level.row_pair[static_cast<std::size_t>(e)];
+        const double* xj = px + 3 * level.row_col[static_cast<std::size_t>(e)];
+        y0 += (B[0] * xj[0] + B[1] * xj[1]) + B[2] * xj[2];
+        y1 += (B[3] * xj[0] + B[4] * xj[1]) + B[5] * xj[2];
+        y2 += (B[6] * xj[0] + B[7] * xj[1]) + B[8] * xj[2];
       }
       py[3 * i] = y0;
       py[3 * i + 1] = y1;

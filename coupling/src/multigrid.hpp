@@ -77,9 +77,9 @@ class AggregationMultigrid final : public PairBlockSink {
     Blocks diag, inverse;  // 9 x n
     std::vector<std::array<Index, 2>> pairs;  // i < j
     Blocks pair_block;                        // 9 x pairs: S_ij for i < j
-    // Matvec rows: for row i, entries [row_offset[i], row_offset[i+1]) of (column, pair, transposed).
-    std::vector<Index> row_offset, row_col, row_pair;
-    std::vector<std::uint8_t> row_transposed;
+    // Matvec rows: row i's entries (column, pair) are [row_offset[i], row_mid[i]) with the pair's block
+    // as stored (i < j), then [row_mid[i], row_offset[i+1]) with its transpose (i > j).
+    std::vector<Index> row_offset, row_mid, row_col, row_pair;
     // To the next level (empty on the coarsest): aggregate of each node, and where each pair's block
     // goes there (plan code, see encode_*).
     std::vector<Index> agg;

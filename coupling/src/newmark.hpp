@@ -98,6 +98,7 @@ class Newmark {
   mutable VectorXd m_joint_scratch;
   AggregationMultigrid m_multigrid;  // StepSettings::multigrid
   bool m_use_multigrid = false;      // this solve preconditions with the multigrid
+  bool m_refresh_multigrid = true;   // this solve re-sums the coarse operators (step 1's; step 4 reuses them)
   bool m_has_damping = false;
   bool m_implicit_elasticity = false;  // some elastic force enters the step-1 solve
 };

@@ -83,7 +83,9 @@ class SinewCurtain final : public SinewCurtainRun {
     m_rings.reset();
   }
 
-  std::string system() const override { return m_settings.implicit_elasticity ? "sinew-implicit" : "sinew"; }
+  std::string system() const override {
+    return m_settings.multigrid ? "sinew-multigrid" : m_settings.implicit_elasticity ? "sinew-implicit" : "sinew";
+  }
 
   void advance(double frame_dt, int steps) override {
     if (!(std::isfinite(frame_dt) && frame_dt > 0)) fail(system(), ": frame_dt = ", frame_dt, " s, must be positive");

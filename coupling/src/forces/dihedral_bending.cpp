@@ -205,6 +205,8 @@ DihedralBending::DihedralBending(std::vector<Hinge> hinges, const Vectors3& rest
     }
   m_rate.assign(count, 0.0);
   m_node_grad.setZero(3, static_cast<Index>(m_incidence.size()));
+  m_node_ggt.setZero(9, static_cast<Index>(m_incidence_offsets.size()) - 1);
+  m_theta.assign(count, 0.0);
   m_scatter = ScatterGather<4>(m_hinges, detail::index_span(m_hinges));
 }
 
@@ -218,6 +220,7 @@ void DihedralBending::update_position_state(const Vectors3& x) {
   // Without damping or implicit treatment only the differential needs cached state, and it needs
   // positions alone: skip the angle gradients (an atan2 and two normalisations per hinge, every solve).
   m_x = x;
+  m_grad_valid = false;
   if (m_settings.damping == 0.0 && !m_implicit) return;
   parallel::for_ranges(static_cast<Index>(m_hinges.size()), [&](Index h0, Index h1) {
     for (Index hi = h0; hi < h1; ++hi) {
@@ -225,15 +228,24 @@ void DihedralBending::update_position_state(const Vectors3& x) {
       Vec<double> p[4];
       gather_hinge(x, m_hinges[h], p);
       const HingeKinematics<double> k = hinge_kinematics(p);
+      m_theta[h] = k.theta;
       for (std::size_t a = 0; a < 4; ++a) m_grad[h].col(static_cast<Index>(a)) = Vec3(k.grad[a].x, k.grad[a].y, k.grad[a].z);
     }
   });
-  // A node-major copy of the gradients, so the implicit products' gather pass streams through memory.
+  m_grad_valid = true;
+  // A node-major copy of the gradients, so the implicit products' gather pass streams through memory,
+  // and each node's sum of w g_a g_a^T over its hinges (the diagonal blocks up to the factor c).
   const auto nodes = static_cast<Index>(m_incidence_offsets.size()) - 1;
   parallel::for_ranges(nodes, [&](Index i0, Index i1) {
-    for (Index k = m_incidence_offsets[static_cast<std::size_t>(i0)]; k < m_incidence_offsets[static_cast<std::size_t>(i1)]; ++k) {
-      const Index slot = m_incidence_slot[static_cast<std::size_t>(k)];
-      m_node_grad.col(k) = m_grad[static_cast<std::size_t>(slot / 4)].col(slot % 4);
+    for (Index i = i0; i < i1; ++i) {
+      Mat3 sum = Mat3::Zero();
+      for (Index k = m_incidence_offsets[static_cast<std::size_t>(i)]; k < m_incidence_offsets[static_cast<std::size_t>(i) + 1]; ++k) {
+        const Index slot = m_incidence_slot[static_cast<std::size_t>(k)];
+        const Vec3 g = m_grad[static_cast<std::size_t>(slot / 4)].col(slot % 4);
+        m_node_grad.col(k) = g;
+        sum += m_weight[static_cast<std::size_t>(slot / 4)] * (g * g.transpose());
+      }
+      Eigen::Map<Mat3>(m_node_ggt.col(i).data()) = sum;
     }
   });
 }
@@ -250,6 +262,19 @@ double DihedralBending::potential_energy(const Vectors3& x) const {
 }
 
 void DihedralBending::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
+  // At the cached state (the step asks for forces right after update_position_state) the angles and
+  // gradients are already known: no second atan2 per hinge.
+  if (m_grad_valid && x.cols() == m_x.cols() && x == m_x) {
+    parallel::for_ranges(static_cast<Index>(m_hinges.size()), [&](Index h0, Index h1) {
+      for (Index hi = h0; hi < h1; ++hi) {
+        const auto h = static_cast<std::size_t>(hi);
+        const double scale = -2.0 * m_settings.stiffness * m_weight[h] * wrapped_difference(m_theta[h], m_rest_angle[h]);
+        for (std::size_t a = 0; a < 4; ++a) m_scatter.slot(hi, a) = scale * m_grad[h].col(static_cast<Index>(a));
+      }
+    });
+    m_scatter.gather_add(f);
+    return;
+  }
   // Parallel over hinges into each hinge's own slots, then gathered per node (deterministic).
   parallel::for_ranges(static_cast<Index>(m_hinges.size()), [&](Index h0, Index h1) {
     for (Index hi = h0; hi < h1; ++hi) {
@@ -372,22 +397,12 @@ void DihedralBending::add_implicit_diagonal(double b, VectorXd& diag) const {
       diag[m_hinges[h][a]] += c * m_weight[h] * m_grad[h].col(static_cast<Index>(a)).squaredNorm() / 3.0;
 }
 
-// The diagonal blocks (c w g_a g_a^T per hinge and node) are gathered per node in hinge order.
+// The diagonal blocks: c times each node's sum of w g_a g_a^T, cached with the gradients.
 bool DihedralBending::add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const {
   const double c = m_settings.damping + 2.0 * b * m_settings.stiffness;
   if (c == 0.0) return true;
-  const auto nodes = static_cast<Index>(m_incidence_offsets.size()) - 1;
-  parallel::for_ranges(nodes, [&](Index i0, Index i1) {
-    for (Index i = i0; i < i1; ++i) {
-      Mat3 sum = Mat3::Zero();
-      for (Index k = m_incidence_offsets[static_cast<std::size_t>(i)]; k < m_incidence_offsets[static_cast<std::size_t>(i) + 1]; ++k) {
-        const Index slot = m_incidence_slot[static_cast<std::size_t>(k)];
-        const Vec3 g = m_grad[static_cast<std::size_t>(slot / 4)].col(slot % 4);
-        sum += (c * m_weight[static_cast<std::size_t>(slot / 4)]) * (g * g.transpose());
-      }
-      Eigen::Map<Mat3>(blocks.col(i).data()) += sum;
-    }
-  });
+  if (!m_grad_valid) fail("dihedral bending: implicit diagonal blocks need set_implicit(true) or damping first");
+  blocks.leftCols(m_node_ggt.cols()) += c * m_node_ggt;
   return true;
 }
 

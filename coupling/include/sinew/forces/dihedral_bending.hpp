@@ -84,6 +84,9 @@ class DihedralBending final : public Force {
   std::vector<Index> m_incidence_slot;  ///< per incidence entry: 4 h + a, node i = hinge h's vertex a
   mutable std::vector<double> m_rate;   ///< implicit products' scratch: -c w (g . v) per hinge
   Vectors3 m_node_grad;                 ///< g_a per incidence entry (node-major copy of m_grad)
+  Eigen::Matrix<double, 9, Eigen::Dynamic> m_node_ggt;  ///< per node: sum over its hinges of w g_a g_a^T
+  std::vector<double> m_theta;          ///< angle per hinge at the cached state
+  bool m_grad_valid = false;            ///< m_grad, m_theta, m_node_* hold the cached state's values
   // Position state: hinge vertex positions (for the differential) and d theta / dx (for damping).
   bool m_implicit = false;  // set_implicit: the angle gradients are needed even without damping
   Vectors3 m_x;  // positions of the cached state (a plain copy: cheaper than per-hinge stencils)
