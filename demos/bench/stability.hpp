@@ -56,7 +56,8 @@ std::vector<StabilityCase> stability_cases();
 /// The case called `name`; throws sinew::Error naming it when there is none.
 StabilityCase stability_case(const std::string& name);
 
-/// The systems the suite runs: "sinew", "bullet-classic", "bullet-deformable".
+/// The systems the suite runs: "sinew", "sinew-multigrid" (springs and bending implicit, the
+/// multigrid preconditioner), "bullet-classic", "bullet-deformable".
 std::vector<std::string> stability_systems();
 
 struct StabilityResult {

@@ -14,7 +14,9 @@ struct DihedralBendingSettings {
   double damping = 0.0;       ///< c [J s], damps the dihedral angle's rate; finite, >= 0
   /// Offer the definite differential K+ below, so that StepSettings::implicit_elasticity treats
   /// bending implicitly too. Off, bending stays explicit and its stable step limits the substep
-  /// (cheaper per step: each CG iteration then skips the hinges).
+  /// (cheaper per step: each CG iteration then skips the hinges). On, nothing limits the step, but
+  /// the linearisation holds only while hinges turn little per step: the benchmark curtain (40 x 40)
+  /// is stable at 1/48 s and gains energy at 1/24 s, 7.6 times the explicit stable step.
   bool implicit = false;
 };
 
