@@ -146,6 +146,26 @@ TEST(Multigrid, PreconditionerIsSymmetricPositiveDefinite) {
   }
 }
 
+// Without any pair blocks (forces such as tets pass none) nothing coarsens: the hierarchy stays one
+// level of singletons, smoothed instead of factored densely, and the preconditioner is still
+// symmetric positive definite.
+TEST(Multigrid, WithoutPairBlocksItStaysSmallAndPositiveDefinite) {
+  const GridOperator op(30, 1e3, 7);
+  AggregationMultigrid mg;
+  mg.begin(op.unknown, op.diag, -1.0);
+  mg.end();
+  EXPECT_EQ(mg.levels(), 2);
+  EXPECT_EQ(mg.level_size(1), mg.level_size(0));
+  const Blocks inverse = op.inverse_blocks();
+  std::mt19937 rng(8);
+  const Vectors3 u = op.random_vector(rng), v = op.random_vector(rng);
+  Vectors3 bu(3, op.count), bv(3, op.count);
+  mg.apply(u, bu, inverse);
+  mg.apply(v, bv, inverse);
+  EXPECT_NEAR(flat(u).dot(flat(bv)), flat(v).dot(flat(bu)), 1e-12 * flat(u).norm() * flat(bv).norm());
+  EXPECT_GT(flat(u).dot(flat(bu)), 0.0);
+}
+
 // Stiff couplings (10^4 times the mass, as implicit cloth at a frame step): block Jacobi's
 // iterations double with the grid's side, the multigrid's grow far less (measured: 84 and 112 for
 // 16 and 32, block Jacobi 193 and 369).

@@ -292,7 +292,10 @@ void AggregationMultigrid::build(const VectorXd& unknown) {
     allocate(m_levels.back());
     assemble_next(l);
   }
-  const Index dense = 3 * m_levels.back().n;
+  // A coarsest level that stayed large (coarsening stalled: forces without pair blocks, such as tets,
+  // couple nothing here) is smoothed by block Jacobi instead of factored densely.
+  m_dense_coarsest = m_levels.back().n <= kMaxDenseNodes;
+  const Index dense = m_dense_coarsest ? 3 * m_levels.back().n : 0;
   m_dense.setZero(dense, dense);
   m_dense_rhs.setZero(dense);
   m_recorded_pairs = {};
@@ -336,7 +339,9 @@ void AggregationMultigrid::end() {
     for (int l = 0; l + 1 < static_cast<int>(m_levels.size()); ++l) assemble_next(l);
   }
   for (std::size_t l = 0; l + 1 < m_levels.size(); ++l) invert_diagonals(m_levels[l]);
+  if (!m_dense_coarsest) invert_diagonals(m_levels.back());
   if (!m_omega_ready) estimate_omegas();
+  if (!m_dense_coarsest) return;
   // The coarsest level, dense: diagonal blocks and both triangles of every pair.
   const Level& last = m_levels.back();
   m_dense.setZero();
@@ -442,7 +447,8 @@ constexpr double kSmoothing = 1.1;
 // lambda_max(D^-1 S) of every smoothed level by power iterations, once, from the first operator
 // (like the aggregates): the damping that makes block Jacobi a smoother there.
 void AggregationMultigrid::estimate_omegas() {
-  for (std::size_t l = 0; l + 1 < m_levels.size(); ++l) {
+  for (std::size_t l = 0; l < m_levels.size(); ++l) {
+    if (l + 1 == m_levels.size() && m_dense_coarsest) break;  // solved exactly, not smoothed
     Level& level = m_levels[l];
     Vectors3& v = level.x;
     start_vector(v);
@@ -463,6 +469,10 @@ void AggregationMultigrid::estimate_omegas() {
 void AggregationMultigrid::cycle(int k) {
   Level& level = m_levels[static_cast<std::size_t>(k)];
   if (k + 1 == static_cast<int>(m_levels.size())) {
+    if (!m_dense_coarsest) {
+      jacobi(level.n, level.omega, level.inverse, level.b, level.x, false);
+      return;
+    }
     m_dense_rhs = Eigen::Map<const VectorXd>(level.b.data(), 3 * level.n);
     m_coarsest.solveInPlace(m_dense_rhs);
     Eigen::Map<VectorXd>(level.x.data(), 3 * level.n) = m_dense_rhs;

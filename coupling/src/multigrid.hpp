@@ -43,6 +43,8 @@ class AggregationMultigrid final : public PairBlockSink {
 
   /// The coarsest level has at most this many nodes (a dense Cholesky of 3 n unknowns).
   static constexpr Index kCoarsestNodes = 48;
+  /// A coarsest level larger than this (coarsening stalled) is smoothed, not factored.
+  static constexpr Index kMaxDenseNodes = 256;
   /// Weight of block Jacobi on the finest level, beside the coarse correction (measured on the
   /// benchmark curtain: 0.6 needs 5-10% fewer iterations than 1 or 0.33 at 40 x 40 and 150 x 150).
   static constexpr double kOmega0 = 0.6;
@@ -110,6 +112,7 @@ class AggregationMultigrid final : public PairBlockSink {
 
   bool m_built = false;
   bool m_omega_ready = false;
+  bool m_dense_coarsest = true;    // the coarsest level is factored (else one Jacobi sweep)
   bool m_recording = false;        // the first update: blocks are stored, the plan does not exist yet
   double m_scale = 0.0;
   Index m_particles = 0;
