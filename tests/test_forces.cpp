@@ -308,6 +308,23 @@ Vectors3 folded(const Cloth& cloth, std::mt19937& rng) {
   return x;
 }
 
+/// At the cached state, the implicit products less the damping (b = 1: K+) are symmetric and
+/// negative semi-definite, probed with random pairs shaped like `like`.
+void expect_definite_part_symmetric_nsd(const Force& force, const Vectors3& like, std::mt19937& rng) {
+  auto definite = [&](const Vectors3& v) {
+    Vectors3 f = Vectors3::Zero(3, like.cols());
+    force.add_implicit_products(v, 1.0, f);
+    return Vectors3(f - damping_forces(force, v));
+  };
+  for (int trial = 0; trial < 20; ++trial) {
+    const Vectors3 u = random_like(like, 1.0, rng), v = random_like(like, 1.0, rng);
+    const Vectors3 ku = definite(u), kv = definite(v);
+    const double scale = flat(u).norm() * flat(kv).norm();
+    EXPECT_NEAR(flat(u).dot(flat(kv)), flat(v).dot(flat(ku)), 1e-12 * scale) << force.name();
+    EXPECT_LE(flat(u).dot(flat(ku)), 1e-12 * scale) << force.name();
+  }
+}
+
 // ---------------------------------------------------------------------------------------------
 // EdgeSprings
 
@@ -359,13 +376,7 @@ TEST(EdgeSprings, ImplicitProductsAreDampingPlusDefiniteDifferential) {
     EXPECT_LT(relative_error(implicit(v, 0.25), damping_forces(springs, v) + 0.25 * differentials(springs, v)), 1e-13);
   }
   springs.update_position_state(0.8 * cloth.rest);  // every edge compressed
-  for (int trial = 0; trial < 20; ++trial) {
-    const Vectors3 u = random_like(cloth.rest, 1.0, rng), v = random_like(cloth.rest, 1.0, rng);
-    const Vectors3 ku = implicit(u, 1.0) - damping_forces(springs, u), kv = implicit(v, 1.0) - damping_forces(springs, v);
-    const double scale = flat(u).norm() * flat(kv).norm();
-    EXPECT_NEAR(flat(u).dot(flat(kv)), flat(v).dot(flat(ku)), 1e-12 * scale);
-    EXPECT_LE(flat(u).dot(flat(ku)), 1e-12 * scale);
-  }
+  expect_definite_part_symmetric_nsd(springs, cloth.rest, rng);
   // Out of the (flat) cloth's plane every edge moves transversally, where the exact differential of
   // a compressed spring pushes outwards (buckling).
   Vectors3 out_of_plane = Vectors3::Zero(3, n);
@@ -652,13 +663,7 @@ TEST(DihedralBending, ImplicitProductsAreDampingPlusGaussNewtonDifferential) {
     EXPECT_LT(relative_error(implicit(v, 0.25), damping_forces(bending, v) + 0.25 * differentials(bending, v)), 1e-12);
   }
   bending.update_position_state(folded(cloth, rng));
-  for (int trial = 0; trial < 20; ++trial) {
-    const Vectors3 u = random_like(cloth.rest, 1.0, rng), v = random_like(cloth.rest, 1.0, rng);
-    const Vectors3 ku = implicit(u, 1.0) - damping_forces(bending, u), kv = implicit(v, 1.0) - damping_forces(bending, v);
-    const double scale = flat(u).norm() * flat(kv).norm();
-    EXPECT_NEAR(flat(u).dot(flat(kv)), flat(v).dot(flat(ku)), 1e-12 * scale);
-    EXPECT_LE(flat(u).dot(flat(ku)), 1e-12 * scale);
-  }
+  expect_definite_part_symmetric_nsd(bending, cloth.rest, rng);
   Eigen::Matrix<double, 9, Eigen::Dynamic> blocks = Eigen::Matrix<double, 9, Eigen::Dynamic>::Zero(9, n);
   ASSERT_TRUE(bending.add_implicit_diagonal_blocks(0.25, blocks));
   for (Index i = 0; i < n; ++i) {

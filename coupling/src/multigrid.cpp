@@ -126,9 +126,8 @@ void AggregationMultigrid::coarse_pairs(const std::vector<std::array<Index, 2>>&
   coarse = keys;
   plan.resize(pairs.size());
   for (std::size_t k = 0; k < pairs.size(); ++k) {
-    const Index a = pairs[k][0] < 0 ? -1 : agg[static_cast<std::size_t>(pairs[k][0])];
-    const Index b = pairs[k][1] < 0 ? -1 : agg[static_cast<std::size_t>(pairs[k][1])];
-    if (a < 0 || b < 0) {
+    const Index a = agg[static_cast<std::size_t>(pairs[k][0])], b = agg[static_cast<std::size_t>(pairs[k][1])];
+    if (a < 0 || b < 0) {  // an end without unknowns (level 0's bound or kinematic rows)
       plan[k] = kSkip;
     } else if (a == b) {
       plan[k] = encode_diag(a);
@@ -249,10 +248,7 @@ void AggregationMultigrid::build(const VectorXd& unknown) {
   {
     Level& l1 = m_levels.back();
     l1.n = n1;
-    std::vector<std::array<Index, 2>> recorded(m_recorded_pairs.size());
-    for (std::size_t k = 0; k < recorded.size(); ++k)
-      recorded[k] = {m_recorded_pairs[k][0], m_recorded_pairs[k][1]};
-    coarse_pairs(recorded, m_agg0, l1.pairs, m_plan0);
+    coarse_pairs(m_recorded_pairs, m_agg0, l1.pairs, m_plan0);
   }
   auto allocate = [](Level& level) {
     level.diag.setZero(9, level.n);

@@ -206,7 +206,8 @@ DihedralBending::DihedralBending(std::vector<Hinge> hinges, const Vectors3& rest
   m_rate.assign(count, 0.0);
   m_node_grad.setZero(3, static_cast<Index>(m_incidence.size()));
   m_node_ggt.setZero(9, static_cast<Index>(m_incidence_offsets.size()) - 1);
-  m_theta.assign(count, 0.0);
+  m_theta = m_rest_angle;  // the cached state starts at rest (m_x, m_grad above)
+  cache_node_gradients();
   m_scatter = ScatterGather<4>(m_hinges, detail::index_span(m_hinges));
 }
 
@@ -232,9 +233,12 @@ void DihedralBending::update_position_state(const Vectors3& x) {
       for (std::size_t a = 0; a < 4; ++a) m_grad[h].col(static_cast<Index>(a)) = Vec3(k.grad[a].x, k.grad[a].y, k.grad[a].z);
     }
   });
-  m_grad_valid = true;
-  // A node-major copy of the gradients, so the implicit products' gather pass streams through memory,
-  // and each node's sum of w g_a g_a^T over its hinges (the diagonal blocks up to the factor c).
+  cache_node_gradients();
+}
+
+// A node-major copy of the gradients, so the implicit products' gather pass streams through memory,
+// and each node's sum of w g_a g_a^T over its hinges (the diagonal blocks up to the factor c).
+void DihedralBending::cache_node_gradients() {
   const auto nodes = static_cast<Index>(m_incidence_offsets.size()) - 1;
   parallel::for_ranges(nodes, [&](Index i0, Index i1) {
     for (Index i = i0; i < i1; ++i) {
@@ -248,6 +252,7 @@ void DihedralBending::update_position_state(const Vectors3& x) {
       Eigen::Map<Mat3>(m_node_ggt.col(i).data()) = sum;
     }
   });
+  m_grad_valid = true;
 }
 
 double DihedralBending::potential_energy(const Vectors3& x) const {
@@ -263,27 +268,23 @@ double DihedralBending::potential_energy(const Vectors3& x) const {
 
 void DihedralBending::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
   // At the cached state (the step asks for forces right after update_position_state) the angles and
-  // gradients are already known: no second atan2 per hinge.
-  if (m_grad_valid && x.cols() == m_x.cols() && x == m_x) {
-    parallel::for_ranges(static_cast<Index>(m_hinges.size()), [&](Index h0, Index h1) {
-      for (Index hi = h0; hi < h1; ++hi) {
-        const auto h = static_cast<std::size_t>(hi);
-        const double scale = -2.0 * m_settings.stiffness * m_weight[h] * wrapped_difference(m_theta[h], m_rest_angle[h]);
-        for (std::size_t a = 0; a < 4; ++a) m_scatter.slot(hi, a) = scale * m_grad[h].col(static_cast<Index>(a));
-      }
-    });
-    m_scatter.gather_add(f);
-    return;
-  }
-  // Parallel over hinges into each hinge's own slots, then gathered per node (deterministic).
+  // gradients are already known: no second atan2 per hinge. Parallel over hinges into each hinge's
+  // own slots, then gathered per node (deterministic).
+  const bool cached = m_grad_valid && x.cols() == m_x.cols() && x == m_x;
   parallel::for_ranges(static_cast<Index>(m_hinges.size()), [&](Index h0, Index h1) {
     for (Index hi = h0; hi < h1; ++hi) {
       const auto h = static_cast<std::size_t>(hi);
-      Vec<double> p[4];
-      gather_hinge(x, m_hinges[h], p);
-      const HingeKinematics<double> k = hinge_kinematics(p);
-      const double scale = -2.0 * m_settings.stiffness * m_weight[h] * wrapped_difference(k.theta, m_rest_angle[h]);
-      for (std::size_t a = 0; a < 4; ++a) m_scatter.slot(hi, a) = scale * Vec3(k.grad[a].x, k.grad[a].y, k.grad[a].z);
+      double theta = m_theta[h];
+      Mat34 g = m_grad[h];
+      if (!cached) {
+        Vec<double> p[4];
+        gather_hinge(x, m_hinges[h], p);
+        const HingeKinematics<double> k = hinge_kinematics(p);
+        theta = k.theta;
+        for (std::size_t a = 0; a < 4; ++a) g.col(static_cast<Index>(a)) = Vec3(k.grad[a].x, k.grad[a].y, k.grad[a].z);
+      }
+      const double scale = -2.0 * m_settings.stiffness * m_weight[h] * wrapped_difference(theta, m_rest_angle[h]);
+      for (std::size_t a = 0; a < 4; ++a) m_scatter.slot(hi, a) = scale * g.col(static_cast<Index>(a));
     }
   });
   m_scatter.gather_add(f);
@@ -306,27 +307,10 @@ void DihedralBending::add_elastic_differentials(const Vectors3& dx, Vectors3& df
   }
 }
 
-void DihedralBending::add_damping_forces(const Vectors3& v, Vectors3& f) const {
-  const double c = m_settings.damping;
-  if (c == 0.0) return;
-  for (std::size_t h = 0; h < m_hinges.size(); ++h) {
-    const Mat34& g = m_grad[h];
-    double rate = 0.0;  // d theta / dt = g . v
-    for (std::size_t a = 0; a < 4; ++a) rate += g.col(static_cast<Index>(a)).dot(v.col(m_hinges[h][a]));
-    const double scale = -c * m_weight[h] * rate;
-    for (std::size_t a = 0; a < 4; ++a) f.col(m_hinges[h][a]) += scale * g.col(static_cast<Index>(a));
-  }
-}
+// Damping is the implicit products with b = 0: f += -c w g (g . v).
+void DihedralBending::add_damping_forces(const Vectors3& v, Vectors3& f) const { add_implicit_products(v, 0.0, f); }
 
-void DihedralBending::add_damping_diagonal(VectorXd& diag) const {
-  const double c = m_settings.damping;
-  if (c == 0.0) return;
-  for (std::size_t h = 0; h < m_hinges.size(); ++h) {
-    for (std::size_t a = 0; a < 4; ++a) {
-      diag[m_hinges[h][a]] += c * m_weight[h] * m_grad[h].col(static_cast<Index>(a)).squaredNorm() / 3.0;
-    }
-  }
-}
+void DihedralBending::add_damping_diagonal(VectorXd& diag) const { add_implicit_diagonal(0.0, diag); }
 
 // f += -(c + 2 b k_b) w g (g . v): damping of the angle's rate plus b K+ v. Two passes, both
 // parallel and deterministic on any thread count: each hinge's scaled rate -c w (g . v), then each

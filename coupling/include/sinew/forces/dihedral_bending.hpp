@@ -94,6 +94,8 @@ class DihedralBending final : public Force {
   Vectors3 m_x;  // positions of the cached state (a plain copy: cheaper than per-hinge stencils)
   mutable ScatterGather<4> m_scatter;  // per-hinge forces on its four nodes, gathered per node
   std::vector<Eigen::Matrix<double, 3, 4>> m_grad;
+  /// m_node_grad and m_node_ggt from m_grad; sets m_grad_valid.
+  void cache_node_gradients();
 };
 
 }  // namespace sinew
