@@ -755,6 +755,35 @@ struct SingleHinge {
   }
 };
 
+// The force kernel evaluates two hinges per SSE2 register and the last odd one alone; every lane
+// must give a hinge the bits of the one-hinge evaluation. Seven disjoint hinges (no node shared, so
+// each node's force is one hinge's term, with no order of summation involved), each against a force
+// holding only that hinge, at random folds and rest shapes.
+TEST(DihedralBending, PairedKernelGivesEachHingeTheBitsOfOneHingeAlone) {
+  std::mt19937 rng(31);
+  const int count = 7;
+  const SingleHinge single;
+  Vectors3 rest(3, 4 * count), x(3, 4 * count);
+  std::vector<DihedralBending::Hinge> hinges;
+  for (int k = 0; k < count; ++k) {
+    const Vectors3 r = single.folded_by(0.2 * k) + random_like(single.rest, 0.05, rng);
+    rest.middleCols(4 * k, 4) = r;
+    x.middleCols(4 * k, 4) = single.folded_by(0.3 - 0.25 * k) + random_like(single.rest, 0.1, rng);
+    hinges.push_back({4 * k, 4 * k + 1, 4 * k + 2, 4 * k + 3});
+  }
+  const DihedralBendingSettings settings{.stiffness = 0.02, .damping = 0.003};
+  DihedralBending all(hinges, rest, settings);
+  Vectors3 f = Vectors3::Zero(3, 4 * count);
+  all.add_elastic_forces(x, f);
+  for (int k = 0; k < count; ++k) {
+    DihedralBending one({{0, 1, 2, 3}}, rest.middleCols(4 * k, 4), settings);
+    Vectors3 f_one = Vectors3::Zero(3, 4);
+    one.add_elastic_forces(x.middleCols(4 * k, 4), f_one);
+    EXPECT_TRUE(f.middleCols(4 * k, 4) == f_one) << "hinge " << k;
+    EXPECT_GT(f_one.norm(), 0.0);
+  }
+}
+
 TEST(DihedralBending, FoldedFlatHingeHasAngleAndClosedFormEnergy) {
   const SingleHinge hinge;
   const double k_b = 0.05;

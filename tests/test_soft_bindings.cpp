@@ -50,7 +50,9 @@ TEST(SoftBinding, FallsAtGNotTwiceG) {
     const Vec3 expected = start + 0.5 * s.settings().gravity;  // t = 1 s
     EXPECT_NEAR((s.particles().x.col(soft) - expected).norm(), 0.0, 1e-10) << "target kind " << static_cast<int>(kind);
     EXPECT_NEAR((s.particles().x.col(target) - expected).norm(), 0.0, 1e-10);
-    EXPECT_LT(stretch, 1e-12);
+    // Round-off only: in free fall step 1's extrapolated guess is exact, so CG stops at once and the
+    // rounding of each step's guess is carried into the next (about 1e-14 m per step here).
+    EXPECT_LT(stretch, 1e-11) << "target kind " << static_cast<int>(kind);
     EXPECT_GT(s.particles().mass[soft], 0.0);
   }
 }

@@ -126,7 +126,8 @@ void Newmark::allocate(const System& s) {
   m_h_mask3.setZero(3 * n);
   for (Index i = 0; i < n; ++i) m_dof_mass3.segment<3>(3 * i).setConstant(m_dof_mass[i]);
   m_h_mask_h = -1.0;
-  for (GeneralizedVector* g : {&m_c, &m_y, &m_r_vec, &m_z, &m_p, &m_q, &m_guess}) g->resize(n, r);
+  for (GeneralizedVector* g : {&m_c, &m_y, &m_r_vec, &m_z, &m_p, &m_q, &m_guess, &m_last_half}) g->resize(n, r);
+  m_last_dt = 0.0;
   m_constraints.reserve(static_cast<std::size_t>(n));
   m_has_damping = false;
   for (const auto& f : s.m_forces) m_has_damping = m_has_damping || f->has_damping();
@@ -218,12 +219,28 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   m_y.particles = m_v_n;
   m_y.rigid.topRows<3>() = m_body_v_n;
   m_y.rigid.bottomRows<3>() = m_body_w_n;
-  // A second initial guess, M^-1 c = v^n + dt/2 M^-1 F on the unknowns (explicit in the implicit
-  // terms): exact for motion they do not resist (free fall, rigid translation), so solve() takes it
-  // when it is exact; far off where they are stiff, where v^n is kept.
-  for (Index i = 0; i < m_n; ++i)
+  const bool extrapolate = m_last_dt > 0.0;
+  if (extrapolate) {
+    // Initial guess from the last step: v^{n+1/2} ~ v^n + (dt / dt_last) (v^n - v^{n-1/2}), since
+    // v^n - v^{n-1/2} ~ dt_last/2 a: exact under constant acceleration (free fall, a steady push)
+    // and O(dt^2) off in smooth motion, where v^n alone is O(dt) off. On the unknowns only; the
+    // result is the same to the CG tolerance whichever guess is used.
+    const double ratio = dt / m_last_dt;
+    for (Index i = 0; i < m_n; ++i)
+      if (m_dynamic_mask[i] > 0.0) m_y.particles.col(i) += ratio * (m_v_n.col(i) - m_last_half.particles.col(i));
+    for (Index b = 0; b < m_r; ++b)
+      if (m_dynamic_body[b]) {
+        const Vec6 now = m_y.rigid.col(b);
+        m_y.rigid.col(b) = now + ratio * (now - m_last_half.rigid.col(b));
+      }
+  }
+  // Before the first step, a second initial guess instead: M^-1 c = v^n + dt/2 M^-1 F on the
+  // unknowns (explicit in the implicit terms): exact for motion they do not resist (free fall,
+  // rigid translation), so solve() takes it when it is exact; far off where they are stiff, where
+  // v^n is kept.
+  for (Index i = 0; i < m_n && !extrapolate; ++i)
     m_guess.particles.col(i) = m_dynamic_mask[i] > 0.0 ? Vec3(m_c.particles.col(i) / m_dof_mass[i]) : Vec3(m_v_n.col(i));
-  for (Index b = 0; b < m_r; ++b) {
+  for (Index b = 0; b < m_r && !extrapolate; ++b) {
     if (m_dynamic_body[b]) {
       m_guess.rigid.col(b).head<3>() = m_c.rigid.col(b).head<3>() / s.m_bodies.mass[b];
       m_guess.rigid.col(b).tail<3>() = m_body_I[b].inverse() * m_c.rigid.col(b).tail<3>();
@@ -236,8 +253,8 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
 
   t = Clock::now();
   const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity || !m_joint_groups.empty();
-  m_refresh_multigrid = true;
-  const SolveResult result = solve(s, h, h, m_implicit_elasticity ? h : 0.0, linear_solve, &m_guess);
+  m_refresh_preconditioner = true;
+  const SolveResult result = solve(s, h, h, m_implicit_elasticity ? h : 0.0, linear_solve, extrapolate ? nullptr : &m_guess);
   stats.ms.cg += ms_since(t);
   stats.linear_solve = linear_solve;
   stats.cg_iterations_step1 += result.iterations;
@@ -358,13 +375,16 @@ void Newmark::backward_euler_velocity(System& s, double dt, StepStats& stats) {
   t = Clock::now();
   const double beta = mode == BindingSpringStep4::implicit_half_step ? h : 0.0;
   const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity || !m_joint_groups.empty();
-  m_refresh_multigrid = false;
+  m_refresh_preconditioner = false;
   const SolveResult result = solve(s, h, beta, m_implicit_elasticity ? h : 0.0, linear_solve);
   stats.ms.cg += ms_since(t);
   stats.cg_iterations_step4 += result.iterations;
   stats.cg_residual = std::max(stats.cg_residual, result.residual);
   stats.cg_converged = stats.cg_converged && result.converged;
   m_v_half = m_y.particles;
+  m_last_half.particles = m_y.particles;
+  m_last_half.rigid = m_y.rigid;
+  m_last_dt = dt;
 
   // Back to x^{n+1}; the half-step twists stay in m_y.rigid for step 5.
   p.x = m_x_np1;
@@ -603,10 +623,7 @@ void Newmark::build_preconditioner(System& s, double h, double beta, double beta
     m_body_preconditioner[b] = m_dynamic_body[b] ? Eigen::Matrix<double, 6, 6>(m_body_preconditioner[b].inverse())
                                                  : Eigen::Matrix<double, 6, 6>::Zero();
   m_use_multigrid = jacobi && s.m_step_settings.multigrid;
-  // Step 4 keeps step 1's coarse operators (half a step apart, the same h): a preconditioner needs
-  // only to be close, and re-summing them costs about a tenth of a cloth step. The finest level (block
-  // Jacobi) is always this solve's own.
-  if (m_use_multigrid && (m_refresh_multigrid || !m_multigrid.built())) {
+  if (m_use_multigrid) {
     // The coarse operators: the full diagonal blocks (mass included) and every force's pair blocks
     // of S = M - h F, restricted to the particle unknowns.
     for (Index i = 0; i < m_n; ++i) {
@@ -756,7 +773,19 @@ Newmark::SolveResult Newmark::solve(System& s, double h, double beta, double bet
                                     GeneralizedVector* alternative) {
   SolveResult result;
   const StepSettings& settings = s.m_step_settings;
-  build_preconditioner(s, h, beta, beta_el, settings.jacobi_preconditioner && linear_solve);
+  // Step 4 keeps step 1's preconditioner (blocks at x^n instead of x^{n+1/2}, half a step apart)
+  // when it was built for the same h and beta_el, and for the same beta where binding springs make
+  // the blocks depend on it: a preconditioner needs only to be close, the answer is the same to the
+  // CG tolerance, and rebuilding it (every force's diagonal blocks, a 3x3 inverse per particle, the
+  // multigrid's coarse operators) costs about a tenth of a cloth step.
+  const bool jacobi = settings.jacobi_preconditioner && linear_solve;
+  const PreconditionerKey& key = m_preconditioner_key;
+  const bool reuse = !m_refresh_preconditioner && key.h == h && key.beta_el == beta_el && key.jacobi == jacobi &&
+                     (s.m_springs.size() == 0 || key.beta == beta) && (!m_use_multigrid || m_multigrid.built());
+  if (!reuse) {
+    build_preconditioner(s, h, beta, beta_el, jacobi);
+    m_preconditioner_key = {h, beta, beta_el, jacobi};
+  }
   impose_joints(m_y);
   if (alternative) impose_joints(*alternative);
   apply(s, h, beta, beta_el, m_y, m_q);

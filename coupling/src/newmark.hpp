@@ -87,7 +87,9 @@ class Newmark {
   VectorXd m_dof_mass3, m_h_mask3;  // m_dof_mass and h m_dynamic_mask per coordinate (3N)
   double m_h_mask_h = -1.0;         // the h m_h_mask3 holds
   GeneralizedVector m_c, m_y, m_r_vec, m_z, m_p, m_q;
-  GeneralizedVector m_guess;  // step 1's second initial guess, M^-1 c
+  GeneralizedVector m_guess;  // step 1's second initial guess, M^-1 c (first step only)
+  GeneralizedVector m_last_half;  // the last step's v^{n+1/2} (particles and twists), for step 1's guess
+  double m_last_dt = 0.0;         // that step's dt; 0 before the first step
   std::vector<CollisionConstraint> m_constraints;
   struct JointGroup {
     std::vector<Index> bodies;  // ascending
@@ -98,7 +100,13 @@ class Newmark {
   mutable VectorXd m_joint_scratch;
   AggregationMultigrid m_multigrid;  // StepSettings::multigrid
   bool m_use_multigrid = false;      // this solve preconditions with the multigrid
-  bool m_refresh_multigrid = true;   // this solve re-sums the coarse operators (step 1's; step 4 reuses them)
+  // Step 1 builds the preconditioner; step 4 keeps it when it was built for the same operator
+  // parameters (see solve()). The key it was built for:
+  bool m_refresh_preconditioner = true;
+  struct PreconditionerKey {
+    double h = -1.0, beta = -1.0, beta_el = -1.0;
+    bool jacobi = false;
+  } m_preconditioner_key;
   bool m_has_damping = false;
   bool m_implicit_elasticity = false;  // some elastic force enters the step-1 solve
 };

@@ -27,7 +27,12 @@
 #include "dual.hpp"
 #include "element_support.hpp"
 
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
+
 #include <algorithm>
+#include <cmath>
 #include <numbers>
 #include <tuple>
 #include <utility>
@@ -91,6 +96,69 @@ Vec<double> to_vec(const Eigen::Ref<const Vec3>& x) { return {x.x(), x.y(), x.z(
 
 void gather_hinge(const Vectors3& x, const std::array<Index, 4>& v, Vec<double> (&p)[4]) {
   for (std::size_t a = 0; a < 4; ++a) p[a] = to_vec(x.col(v[a]));
+}
+
+#ifdef __SSE2__
+// Two hinges per register for hinge_kinematics: every operation lane-wise the same IEEE operation
+// as in the scalar kernel (and atan2 the same library call per lane), so a hinge gets the same bits
+// whichever lane, or the scalar path, evaluates it.
+struct Lanes {
+  __m128d v;
+  friend Lanes operator+(Lanes a, Lanes b) { return {_mm_add_pd(a.v, b.v)}; }
+  friend Lanes operator-(Lanes a, Lanes b) { return {_mm_sub_pd(a.v, b.v)}; }
+  friend Lanes operator-(Lanes a) { return {_mm_xor_pd(a.v, _mm_set1_pd(-0.0))}; }  // exact, as scalar negation
+  friend Lanes operator*(Lanes a, Lanes b) { return {_mm_mul_pd(a.v, b.v)}; }
+  friend Lanes operator/(Lanes a, Lanes b) { return {_mm_div_pd(a.v, b.v)}; }
+};
+Lanes sqrt(Lanes a) { return {_mm_sqrt_pd(a.v)}; }
+Lanes atan2(Lanes y, Lanes x) {
+  alignas(16) double ys[2], xs[2];
+  _mm_store_pd(ys, y.v);
+  _mm_store_pd(xs, x.v);
+  return {_mm_set_pd(std::atan2(ys[1], xs[1]), std::atan2(ys[0], xs[0]))};
+}
+#endif
+
+/// out(h, theta, grad) for every hinge h in [h0, h1), in order, at positions x: two hinges at a
+/// time where SSE2 is available (the same values as one at a time).
+template <typename Out>
+void for_each_hinge_kinematics(const std::vector<DihedralBending::Hinge>& hinges, const Vectors3& x, Index h0, Index h1, Out&& out) {
+  Index h = h0;
+#ifdef __SSE2__
+  const double* px = x.data();
+  for (; h + 1 < h1; h += 2) {
+    const auto& first = hinges[static_cast<std::size_t>(h)];
+    const auto& second = hinges[static_cast<std::size_t>(h + 1)];
+    Vec<Lanes> p[4];
+    for (std::size_t a = 0; a < 4; ++a) {
+      const double* u = px + 3 * first[a];
+      const double* w = px + 3 * second[a];
+      p[a] = {{_mm_loadh_pd(_mm_load_sd(u), w)}, {_mm_loadh_pd(_mm_load_sd(u + 1), w + 1)}, {_mm_loadh_pd(_mm_load_sd(u + 2), w + 2)}};
+    }
+    const HingeKinematics<Lanes> k = hinge_kinematics(p);
+    // Back to one hinge per lane: [l] is theta, then the gradient's 12 components.
+    alignas(16) double lanes[13][2];
+    _mm_store_pd(lanes[0], k.theta.v);
+    for (std::size_t a = 0; a < 4; ++a) {
+      _mm_store_pd(lanes[1 + 3 * a], k.grad[a].x.v);
+      _mm_store_pd(lanes[2 + 3 * a], k.grad[a].y.v);
+      _mm_store_pd(lanes[3 + 3 * a], k.grad[a].z.v);
+    }
+    for (int l = 0; l < 2; ++l) {
+      const Vec<double> grad[4] = {{lanes[1][l], lanes[2][l], lanes[3][l]},
+                                   {lanes[4][l], lanes[5][l], lanes[6][l]},
+                                   {lanes[7][l], lanes[8][l], lanes[9][l]},
+                                   {lanes[10][l], lanes[11][l], lanes[12][l]}};
+      out(h + l, lanes[0][l], grad);
+    }
+  }
+#endif
+  for (; h < h1; ++h) {
+    Vec<double> p[4];
+    gather_hinge(x, hinges[static_cast<std::size_t>(h)], p);
+    const HingeKinematics<double> k = hinge_kinematics(p);
+    out(h, k.theta, k.grad);
+  }
 }
 
 }  // namespace
@@ -224,14 +292,11 @@ void DihedralBending::update_position_state(const Vectors3& x) {
   m_grad_valid = false;
   if (m_settings.damping == 0.0 && !m_implicit) return;
   parallel::for_ranges(static_cast<Index>(m_hinges.size()), [&](Index h0, Index h1) {
-    for (Index hi = h0; hi < h1; ++hi) {
+    for_each_hinge_kinematics(m_hinges, x, h0, h1, [&](Index hi, double theta, const Vec<double> (&grad)[4]) {
       const auto h = static_cast<std::size_t>(hi);
-      Vec<double> p[4];
-      gather_hinge(x, m_hinges[h], p);
-      const HingeKinematics<double> k = hinge_kinematics(p);
-      m_theta[h] = k.theta;
-      for (std::size_t a = 0; a < 4; ++a) m_grad[h].col(static_cast<Index>(a)) = Vec3(k.grad[a].x, k.grad[a].y, k.grad[a].z);
-    }
+      m_theta[h] = theta;
+      for (std::size_t a = 0; a < 4; ++a) m_grad[h].col(static_cast<Index>(a)) = Vec3(grad[a].x, grad[a].y, grad[a].z);
+    });
   });
   cache_node_gradients();
 }
@@ -271,21 +336,28 @@ void DihedralBending::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
   // gradients are already known: no second atan2 per hinge. Parallel over hinges into each hinge's
   // own slots, then gathered per node (deterministic).
   const bool cached = m_grad_valid && x.cols() == m_x.cols() && x == m_x;
+  const double k_b = m_settings.stiffness;
+  double* slots = m_scatter.values().data();  // 12 per hinge: its force on vertex 0 .. 3
   parallel::for_ranges(static_cast<Index>(m_hinges.size()), [&](Index h0, Index h1) {
-    for (Index hi = h0; hi < h1; ++hi) {
-      const auto h = static_cast<std::size_t>(hi);
-      double theta = m_theta[h];
-      Mat34 g = m_grad[h];
-      if (!cached) {
-        Vec<double> p[4];
-        gather_hinge(x, m_hinges[h], p);
-        const HingeKinematics<double> k = hinge_kinematics(p);
-        theta = k.theta;
-        for (std::size_t a = 0; a < 4; ++a) g.col(static_cast<Index>(a)) = Vec3(k.grad[a].x, k.grad[a].y, k.grad[a].z);
+    if (cached) {
+      for (Index hi = h0; hi < h1; ++hi) {
+        const auto h = static_cast<std::size_t>(hi);
+        const double scale = -2.0 * k_b * m_weight[h] * wrapped_difference(m_theta[h], m_rest_angle[h]);
+        const double* g = m_grad[h].data();
+        for (int c = 0; c < 12; ++c) slots[12 * hi + c] = scale * g[c];
       }
-      const double scale = -2.0 * m_settings.stiffness * m_weight[h] * wrapped_difference(theta, m_rest_angle[h]);
-      for (std::size_t a = 0; a < 4; ++a) m_scatter.slot(hi, a) = scale * g.col(static_cast<Index>(a));
+      return;
     }
+    for_each_hinge_kinematics(m_hinges, x, h0, h1, [&](Index hi, double theta, const Vec<double> (&grad)[4]) {
+      const auto h = static_cast<std::size_t>(hi);
+      const double scale = -2.0 * k_b * m_weight[h] * wrapped_difference(theta, m_rest_angle[h]);
+      double* out = slots + 12 * hi;
+      for (std::size_t a = 0; a < 4; ++a) {
+        out[3 * a] = scale * grad[a].x;
+        out[3 * a + 1] = scale * grad[a].y;
+        out[3 * a + 2] = scale * grad[a].z;
+      }
+    });
   });
   m_scatter.gather_add(f);
 }
