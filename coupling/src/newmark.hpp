@@ -87,7 +87,7 @@ class Newmark {
   VectorXd m_dof_mass3, m_h_mask3;  // m_dof_mass and h m_dynamic_mask per coordinate (3N)
   double m_h_mask_h = -1.0;         // the h m_h_mask3 holds
   GeneralizedVector m_c, m_y, m_r_vec, m_z, m_p, m_q;
-  GeneralizedVector m_guess;  // step 1's second initial guess, M^-1 c (first step only)
+  GeneralizedVector m_guess;  // step 1's second initial guess M^-1 c (first step), later the extrapolation's increment
   GeneralizedVector m_last_half;  // the last step's v^{n+1/2} (particles and twists), for step 1's guess
   double m_last_dt = 0.0;         // that step's dt; 0 before the first step
   std::vector<CollisionConstraint> m_constraints;
