@@ -61,7 +61,6 @@ EdgeSprings::EdgeSprings(std::vector<Edge> edges, const Vectors3& rest_x, const 
     m_stiffness_sum[v[1]] += m_settings.stiffness;
   }
   m_index_span = detail::index_span(m_edges);
-  m_scatter = ScatterGather<2>(m_edges, m_index_span);
   m_implicit_state.resize(edge_count, 4);
   m_implicit_state.leftCols<3>() = m_direction.transpose();
   m_implicit_state.col(3).setZero();
@@ -91,6 +90,7 @@ void EdgeSprings::validate(Index particle_count) const {
 }
 
 void EdgeSprings::update_position_state(const Vectors3& x) {
+  m_x = x;
   parallel::for_ranges(static_cast<Index>(m_edges.size()), [&](Index e0, Index e1) {
     for (Index e = e0; e < e1; ++e) {
       const Edge& v = m_edges[static_cast<std::size_t>(e)];
@@ -105,17 +105,47 @@ void EdgeSprings::update_position_state(const Vectors3& x) {
 }
 
 // Every per-edge loop below computes the force on the edge's first end, f_i (the second end gets
-// -f_i), in parallel over edges into the edge's own slots; each node then gathers its slots.
-template <typename EdgeForce>
-void EdgeSprings::scatter_gather(Vectors3& f, EdgeForce&& edge_force) const {
-  parallel::for_ranges(static_cast<Index>(m_edges.size()), [&](Index e0, Index e1) {
-    for (Index e = e0; e < e1; ++e) {
-      const Vec3 f_i = edge_force(e, m_edges[static_cast<std::size_t>(e)]);
-      m_scatter.slot(e, 0) = f_i;
-      m_scatter.slot(e, 1) = -f_i;
+// -f_i), and scatters it straight into the nodes, sequentially within each chunk: one chunk into f,
+// several in parallel into their own buffers, which are then added into f in chunk order (the same
+// bits for any thread count).
+template <typename Scatter>
+void EdgeSprings::chunked_scatter(Vectors3& f, Scatter&& scatter) const {
+  if (m_chunks.size() == 1) {
+    scatter(m_chunks[0], f.data());
+    return;
+  }
+  const auto chunk_count = static_cast<Index>(m_chunks.size());
+  parallel::for_ranges_when(true, chunk_count, [&](Index c0, Index c1) {
+    for (Index c = c0; c < c1; ++c) {
+      const Chunk& chunk = m_chunks[static_cast<std::size_t>(c)];
+      Vectors3& buffer = m_chunk_f[static_cast<std::size_t>(c)];
+      buffer.middleCols(chunk.node_begin, chunk.node_end - chunk.node_begin).setZero();
+      scatter(chunk, buffer.data());
     }
   });
-  m_scatter.gather_add(f);
+  double* pf = f.data();
+  parallel::for_ranges(m_index_span, [&](Index i0, Index i1) {
+    for (const Chunk& chunk : m_chunks) {
+      const double* pb = m_chunk_f[static_cast<std::size_t>(&chunk - m_chunks.data())].data();
+      const Index begin = 3 * std::max(i0, chunk.node_begin), end = 3 * std::min(i1, chunk.node_end);
+      for (Index k = begin; k < end; ++k) pf[k] += pb[k];
+    }
+  });
+}
+
+template <typename EdgeForce>
+void EdgeSprings::scatter_edges(Vectors3& f, EdgeForce&& edge_force) const {
+  chunked_scatter(f, [&](const Chunk& chunk, double* out) {
+    for (Index e = chunk.edge_begin; e < chunk.edge_end; ++e) {
+      const Edge& v = m_edges[static_cast<std::size_t>(e)];
+      const Vec3 f_i = edge_force(e, v);
+      const Index i = 3 * v[0], j = 3 * v[1];
+      for (int k = 0; k < 3; ++k) {
+        out[i + k] += f_i[k];
+        out[j + k] -= f_i[k];
+      }
+    }
+  });
 }
 
 double EdgeSprings::potential_energy(const Vectors3& x) const {
@@ -127,12 +157,18 @@ double EdgeSprings::potential_energy(const Vectors3& x) const {
   return energy;
 }
 
+// f_i = k (l - l0) d, from the cached lengths and directions when x is the cached state (the step
+// asks for forces right after update_position_state), else computed the same way from x.
 void EdgeSprings::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
   const double k = m_settings.stiffness;
-  scatter_gather(f, [&](Index e, const Edge& v) -> Vec3 {
+  if (x.cols() == m_x.cols() && x == m_x) {
+    scatter_edges(f, [&](Index e, const Edge&) -> Vec3 { return (k * (m_length[e] - m_rest_length[e])) * m_direction.col(e); });
+    return;
+  }
+  scatter_edges(f, [&](Index e, const Edge& v) -> Vec3 {
     const Vec3 diff = x.col(v[1]) - x.col(v[0]);
     const double l = diff.norm();
-    return (k * (l - m_rest_length[e]) / l) * diff;
+    return (k * (l - m_rest_length[e])) * Vec3(diff / l);
   });
 }
 
@@ -155,7 +191,7 @@ void EdgeSprings::add_elastic_differentials(const Vectors3& dx, Vectors3& df) co
 void EdgeSprings::add_damping_forces(const Vectors3& v, Vectors3& f) const {
   const double b = m_settings.damping;
   if (b == 0.0) return;
-  scatter_gather(f, [&](Index e, const Edge& ij) -> Vec3 {
+  scatter_edges(f, [&](Index e, const Edge& ij) -> Vec3 {
     const Vec3 d = m_direction.col(e);
     return (-b * d.dot(v.col(ij[0]) - v.col(ij[1]))) * d;
   });
@@ -232,27 +268,7 @@ void EdgeSprings::add_implicit_products(const Vectors3& v, double b, Vectors3& f
       out[j + 2] -= f2;
     }
   };
-  if (m_chunks.size() == 1) {
-    scatter(m_chunks[0], f.data());
-    return;
-  }
-  const auto chunk_count = static_cast<Index>(m_chunks.size());
-  parallel::for_ranges_when(true, chunk_count, [&](Index c0, Index c1) {
-    for (Index c = c0; c < c1; ++c) {
-      const Chunk& chunk = m_chunks[static_cast<std::size_t>(c)];
-      Vectors3& buffer = m_chunk_f[static_cast<std::size_t>(c)];
-      buffer.middleCols(chunk.node_begin, chunk.node_end - chunk.node_begin).setZero();
-      scatter(chunk, buffer.data());
-    }
-  });
-  double* pf = f.data();
-  parallel::for_ranges(m_index_span, [&](Index i0, Index i1) {
-    for (const Chunk& chunk : m_chunks) {
-      const double* pb = m_chunk_f[static_cast<std::size_t>(&chunk - m_chunks.data())].data();
-      const Index begin = 3 * std::max(i0, chunk.node_begin), end = 3 * std::min(i1, chunk.node_end);
-      for (Index k = begin; k < end; ++k) pf[k] += pb[k];
-    }
-  });
+  chunked_scatter(f, scatter);
 }
 
 void EdgeSprings::add_implicit_diagonal(double b, VectorXd& diag) const {

@@ -44,8 +44,13 @@ class EdgeSprings final : public Force {
   const EdgeSpringsSettings& settings() const { return m_settings; }
 
  private:
+  /// f += each edge's scatter into its two ends, chunk by chunk (see m_chunks): scatter(chunk, out)
+  /// adds the chunk's edges into `out`, a node-indexed flat array (f itself, or the chunk's buffer).
+  template <typename Scatter>
+  void chunked_scatter(Vectors3& f, Scatter&& scatter) const;
+  /// chunked_scatter of f_i = edge_force(e, edge) into end i and -f_i into end j, edge by edge.
   template <typename EdgeForce>
-  void scatter_gather(Vectors3& f, EdgeForce&& edge_force) const;
+  void scatter_edges(Vectors3& f, EdgeForce&& edge_force) const;
   /// Edge e's implicit product matrix b_d d d^T + b k (d d^T + t+ (I - d d^T)) at the cached state.
   Mat3 implicit_block(Index e, double b) const;
 
@@ -54,9 +59,11 @@ class EdgeSprings final : public Force {
   VectorXd m_rest_length;      ///< l0 per edge
   VectorXd m_stiffness_sum;    ///< sum of k over the edges at each particle (stable_dt)
   Index m_index_span = 0;      ///< one past the largest particle index used
-  // Position state (update_position_state): unit direction x_j - x_i and length per edge.
+  // Position state (update_position_state): unit direction x_j - x_i and length per edge, and the
+  // positions they were computed from (forces there reuse them).
   Vectors3 m_direction;
   VectorXd m_length;
+  Vectors3 m_x;
   // The implicit products' per-edge data, refreshed with the position state so a CG iteration
   // divides nothing: columns 0-2 the unit direction d, column 3 the clamped transverse factor
   // t+ = max(0, 1 - l0/l), each contiguous over the edges (two edges per SIMD register).
@@ -72,7 +79,6 @@ class EdgeSprings final : public Force {
   };
   std::vector<Chunk> m_chunks;
   mutable std::vector<Vectors3> m_chunk_f;  // per chunk (when more than one), 3 x node span
-  mutable ScatterGather<2> m_scatter;  // per-edge end forces, gathered per node (deterministic threads)
 };
 
 }  // namespace sinew
