@@ -66,6 +66,70 @@ double sum(Index n, Term&& term) {
 
 }  // namespace parallel
 
+/// Element loops that add each element's terms straight into its nodes, sequentially within fixed
+/// chunks of consecutive elements. The chunk count depends on the element count alone (never on the
+/// thread count), which keeps the bits the same for any number of threads: with one chunk the terms
+/// go into f, with more each chunk adds into its own buffer over the node range its elements touch,
+/// in parallel, and the buffers are then added into f in chunk order. One pass over the elements and
+/// no per-element storage (ScatterGather's alternative), at the price of the buffers' node ranges.
+class ChunkedScatter {
+ public:
+  struct Chunk {
+    Index begin = 0, end = 0;            ///< elements
+    Index node_begin = 0, node_end = 0;  ///< nodes touched by the chunk's elements
+  };
+  ChunkedScatter() = default;
+  /// elements: node indices per element; nodes: one past the largest node index. One chunk below
+  /// kMinParallelItems elements, else up to 8 of at least kMinParallelItems / 2 (so 2 or 4 threads
+  /// share them evenly).
+  template <std::size_t K>
+  ChunkedScatter(const std::vector<std::array<Index, K>>& elements, Index nodes) : m_nodes(nodes) {
+    const auto count = static_cast<Index>(elements.size());
+    const Index chunks = count < parallel::kMinParallelItems ? 1 : std::min<Index>(8, std::max<Index>(2, count / (parallel::kMinParallelItems / 2)));
+    for (Index c = 0; c < chunks; ++c) {
+      Chunk chunk{count * c / chunks, count * (c + 1) / chunks, nodes, 0};
+      for (Index e = chunk.begin; e < chunk.end; ++e)
+        for (Index i : elements[static_cast<std::size_t>(e)]) {
+          chunk.node_begin = std::min(chunk.node_begin, i);
+          chunk.node_end = std::max(chunk.node_end, i + 1);
+        }
+      if (chunk.node_begin > chunk.node_end) chunk.node_begin = chunk.node_end;
+      m_chunks.push_back(chunk);
+    }
+    if (chunks > 1) m_buffers.assign(static_cast<std::size_t>(chunks), Vectors3::Zero(3, nodes));
+  }
+  const std::vector<Chunk>& chunks() const { return m_chunks; }
+  /// f += the terms scatter(chunk, out) adds into `out`, a flat node-indexed array (3 per node).
+  template <typename Scatter>
+  void run(Vectors3& f, Scatter&& scatter) const {
+    if (m_chunks.size() == 1) {
+      scatter(m_chunks[0], f.data());
+      return;
+    }
+    parallel::for_ranges_when(true, static_cast<Index>(m_chunks.size()), [&](Index c0, Index c1) {
+      for (Index c = c0; c < c1; ++c) {
+        const Chunk& chunk = m_chunks[static_cast<std::size_t>(c)];
+        Vectors3& buffer = m_buffers[static_cast<std::size_t>(c)];
+        buffer.middleCols(chunk.node_begin, chunk.node_end - chunk.node_begin).setZero();
+        scatter(chunk, buffer.data());
+      }
+    });
+    double* pf = f.data();
+    parallel::for_ranges(m_nodes, [&](Index i0, Index i1) {
+      for (std::size_t c = 0; c < m_chunks.size(); ++c) {
+        const double* pb = m_buffers[c].data();
+        const Index begin = 3 * std::max(i0, m_chunks[c].node_begin), end = 3 * std::min(i1, m_chunks[c].node_end);
+        for (Index k = begin; k < end; ++k) pf[k] += pb[k];
+      }
+    });
+  }
+
+ private:
+  std::vector<Chunk> m_chunks;
+  mutable std::vector<Vectors3> m_buffers;  // per chunk (when more than one), 3 x nodes
+  Index m_nodes = 0;
+};
+
 /// Element forces add per-element contributions into nodes. To do that in parallel and
 /// deterministically, each element writes its K node contributions into its own slots, and each
 /// node then gathers its slots in a fixed order (the order of elements in the force).

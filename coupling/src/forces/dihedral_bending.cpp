@@ -271,12 +271,11 @@ DihedralBending::DihedralBending(std::vector<Hinge> hinges, const Vectors3& rest
       const Hinge& hinge = m_hinges[static_cast<std::size_t>(h)];
       m_incidence_slot[static_cast<std::size_t>(k)] = 4 * h + (std::find(hinge.begin(), hinge.end(), static_cast<Index>(i)) - hinge.begin());
     }
-  m_rate.assign(count, 0.0);
-  m_node_grad.setZero(3, static_cast<Index>(m_incidence.size()));
   m_node_ggt.setZero(9, static_cast<Index>(m_incidence_offsets.size()) - 1);
   m_theta = m_rest_angle;  // the cached state starts at rest (m_x, m_grad above)
   cache_node_gradients();
   m_scatter = ScatterGather<4>(m_hinges, detail::index_span(m_hinges));
+  m_chunks = ChunkedScatter(m_hinges, detail::index_span(m_hinges));
 }
 
 void DihedralBending::validate(Index particle_count) const {
@@ -301,20 +300,33 @@ void DihedralBending::update_position_state(const Vectors3& x) {
   cache_node_gradients();
 }
 
-// A node-major copy of the gradients, so the implicit products' gather pass streams through memory,
-// and each node's sum of w g_a g_a^T over its hinges (the diagonal blocks up to the factor c).
+// Each node's sum of w g_a g_a^T over its hinges (the diagonal blocks up to the factor c), in the
+// hinges' order; the six distinct entries of the symmetric block summed, then mirrored.
 void DihedralBending::cache_node_gradients() {
   const auto nodes = static_cast<Index>(m_incidence_offsets.size()) - 1;
+  const double* pg = m_grad.empty() ? nullptr : m_grad[0].data();
   parallel::for_ranges(nodes, [&](Index i0, Index i1) {
     for (Index i = i0; i < i1; ++i) {
-      Mat3 sum = Mat3::Zero();
+      double xx = 0.0, xy = 0.0, xz = 0.0, yy = 0.0, yz = 0.0, zz = 0.0;
       for (Index k = m_incidence_offsets[static_cast<std::size_t>(i)]; k < m_incidence_offsets[static_cast<std::size_t>(i) + 1]; ++k) {
-        const Index slot = m_incidence_slot[static_cast<std::size_t>(k)];
-        const Vec3 g = m_grad[static_cast<std::size_t>(slot / 4)].col(slot % 4);
-        m_node_grad.col(k) = g;
-        sum += m_weight[static_cast<std::size_t>(slot / 4)] * (g * g.transpose());
+        const Index slot = m_incidence_slot[static_cast<std::size_t>(k)];  // 4 h + a
+        const double* g = pg + 3 * slot;
+        const double w = m_weight[static_cast<std::size_t>(slot / 4)];
+        const double wx = w * g[0], wy = w * g[1], wz = w * g[2];
+        xx += wx * g[0];
+        xy += wx * g[1];
+        xz += wx * g[2];
+        yy += wy * g[1];
+        yz += wy * g[2];
+        zz += wz * g[2];
       }
-      Eigen::Map<Mat3>(m_node_ggt.col(i).data()) = sum;
+      double* block = m_node_ggt.col(i).data();  // column-major 3x3
+      block[0] = xx;
+      block[1] = block[3] = xy;
+      block[2] = block[6] = xz;
+      block[4] = yy;
+      block[5] = block[7] = yz;
+      block[8] = zz;
     }
   });
   m_grad_valid = true;
@@ -384,63 +396,34 @@ void DihedralBending::add_damping_forces(const Vectors3& v, Vectors3& f) const {
 
 void DihedralBending::add_damping_diagonal(VectorXd& diag) const { add_implicit_diagonal(0.0, diag); }
 
-// f += -(c + 2 b k_b) w g (g . v): damping of the angle's rate plus b K+ v. Two passes, both
-// parallel and deterministic on any thread count: each hinge's scaled rate -c w (g . v), then each
-// node gathers g_a times its hinges' rates in hinge order (no per-hinge force slots to store).
+// f += -(c + 2 b k_b) w g (g . v): damping of the angle's rate plus b K+ v. One pass over the
+// hinges' cached gradients: each hinge's scaled rate -c w (g . v), scattered as rate g_a into its
+// four nodes by fixed chunks of hinges (deterministic on any thread count).
 void DihedralBending::add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
   const double c = m_settings.damping + 2.0 * b * m_settings.stiffness;
   if (c == 0.0) return;
   if (!m_implicit && m_settings.damping == 0.0) fail("dihedral bending: implicit products need set_implicit(true) first");
   const double* pv = v.data();
   const double* pg = m_grad.empty() ? nullptr : m_grad[0].data();  // 12 per hinge: g_0 .. g_3
-  double* rate = m_rate.data();
-  parallel::for_ranges(static_cast<Index>(m_hinges.size()), [&](Index h0, Index h1) {
-    for (Index h = h0; h < h1; ++h) {
-      const Hinge& hinge = m_hinges[static_cast<std::size_t>(h)];
+  const double* weight = m_weight.data();
+  const Hinge* hinges = m_hinges.data();
+  m_chunks.run(f, [&](const ChunkedScatter::Chunk& chunk, double* out) {
+    for (Index h = chunk.begin; h < chunk.end; ++h) {
+      const Hinge& hinge = hinges[h];
       const double* g = pg + 12 * h;
+      const Index i0 = 3 * hinge[0], i1 = 3 * hinge[1], i2 = 3 * hinge[2], i3 = 3 * hinge[3];
       // d theta / dt = g . v, as a tree of four independent per-vertex terms (no serial chain of adds).
-      const double* v0 = pv + 3 * hinge[0];
-      const double* v1 = pv + 3 * hinge[1];
-      const double* v2 = pv + 3 * hinge[2];
-      const double* v3 = pv + 3 * hinge[3];
-      const double r0 = (g[0] * v0[0] + g[1] * v0[1]) + g[2] * v0[2];
-      const double r1 = (g[3] * v1[0] + g[4] * v1[1]) + g[5] * v1[2];
-      const double r2 = (g[6] * v2[0] + g[7] * v2[1]) + g[8] * v2[2];
-      const double r3 = (g[9] * v3[0] + g[10] * v3[1]) + g[11] * v3[2];
-      rate[h] = -c * m_weight[static_cast<std::size_t>(h)] * ((r0 + r1) + (r2 + r3));
-    }
-  });
-  double* pf = f.data();
-  const double* pn = m_node_grad.data();
-  const auto nodes = static_cast<Index>(m_incidence_offsets.size()) - 1;
-  parallel::for_ranges(nodes, [&](Index i0, Index i1) {
-    for (Index i = i0; i < i1; ++i) {
-      const Index begin = m_incidence_offsets[static_cast<std::size_t>(i)], end = m_incidence_offsets[static_cast<std::size_t>(i) + 1];
-      if (begin == end) continue;
-      // Even and odd entries in two accumulators (two independent chains of adds), then combined.
-      const Index* hinge_of = m_incidence.data();
-      double a0 = 0.0, a1 = 0.0, a2 = 0.0, b0 = 0.0, b1 = 0.0, b2 = 0.0;
-      Index k = begin;
-      for (; k + 1 < end; k += 2) {
-        const double ra = rate[hinge_of[k]], rb = rate[hinge_of[k + 1]];
-        const double* g = pn + 3 * k;
-        a0 += ra * g[0];
-        a1 += ra * g[1];
-        a2 += ra * g[2];
-        b0 += rb * g[3];
-        b1 += rb * g[4];
-        b2 += rb * g[5];
+      const double r0 = (g[0] * pv[i0] + g[1] * pv[i0 + 1]) + g[2] * pv[i0 + 2];
+      const double r1 = (g[3] * pv[i1] + g[4] * pv[i1 + 1]) + g[5] * pv[i1 + 2];
+      const double r2 = (g[6] * pv[i2] + g[7] * pv[i2 + 1]) + g[8] * pv[i2 + 2];
+      const double r3 = (g[9] * pv[i3] + g[10] * pv[i3 + 1]) + g[11] * pv[i3 + 2];
+      const double rate = -c * weight[h] * ((r0 + r1) + (r2 + r3));
+      for (int k = 0; k < 3; ++k) {
+        out[i0 + k] += rate * g[k];
+        out[i1 + k] += rate * g[3 + k];
+        out[i2 + k] += rate * g[6 + k];
+        out[i3 + k] += rate * g[9 + k];
       }
-      if (k < end) {
-        const double ra = rate[hinge_of[k]];
-        const double* g = pn + 3 * k;
-        a0 += ra * g[0];
-        a1 += ra * g[1];
-        a2 += ra * g[2];
-      }
-      pf[3 * i] += a0 + b0;
-      pf[3 * i + 1] += a1 + b1;
-      pf[3 * i + 2] += a2 + b2;
     }
   });
 }

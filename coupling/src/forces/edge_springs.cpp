@@ -64,25 +64,7 @@ EdgeSprings::EdgeSprings(std::vector<Edge> edges, const Vectors3& rest_x, const 
   m_implicit_state.resize(edge_count, 4);
   m_implicit_state.leftCols<3>() = m_direction.transpose();
   m_implicit_state.col(3).setZero();
-  // One chunk below the parallel threshold (a sequential scatter, no buffers), else up to 8 chunks
-  // of at least kMinParallelItems / 2 edges (so 2 or 4 threads share them evenly).
-  const Index chunk_count = edge_count < parallel::kMinParallelItems
-                                ? 1
-                                : std::min<Index>(8, std::max<Index>(2, edge_count / (parallel::kMinParallelItems / 2)));
-  for (Index c = 0; c < chunk_count; ++c) {
-    Chunk chunk;
-    chunk.edge_begin = edge_count * c / chunk_count;
-    chunk.edge_end = edge_count * (c + 1) / chunk_count;
-    chunk.node_begin = m_index_span;
-    for (Index e = chunk.edge_begin; e < chunk.edge_end; ++e)
-      for (Index i : m_edges[static_cast<std::size_t>(e)]) {
-        chunk.node_begin = std::min(chunk.node_begin, i);
-        chunk.node_end = std::max(chunk.node_end, i + 1);
-      }
-    if (chunk.node_begin > chunk.node_end) chunk.node_begin = chunk.node_end;
-    m_chunks.push_back(chunk);
-  }
-  if (chunk_count > 1) m_chunk_f.assign(static_cast<std::size_t>(chunk_count), Vectors3::Zero(3, m_index_span));
+  m_chunks = ChunkedScatter(m_edges, m_index_span);
 }
 
 void EdgeSprings::validate(Index particle_count) const {
@@ -105,38 +87,11 @@ void EdgeSprings::update_position_state(const Vectors3& x) {
 }
 
 // Every per-edge loop below computes the force on the edge's first end, f_i (the second end gets
-// -f_i), and scatters it straight into the nodes, sequentially within each chunk: one chunk into f,
-// several in parallel into their own buffers, which are then added into f in chunk order (the same
-// bits for any thread count).
-template <typename Scatter>
-void EdgeSprings::chunked_scatter(Vectors3& f, Scatter&& scatter) const {
-  if (m_chunks.size() == 1) {
-    scatter(m_chunks[0], f.data());
-    return;
-  }
-  const auto chunk_count = static_cast<Index>(m_chunks.size());
-  parallel::for_ranges_when(true, chunk_count, [&](Index c0, Index c1) {
-    for (Index c = c0; c < c1; ++c) {
-      const Chunk& chunk = m_chunks[static_cast<std::size_t>(c)];
-      Vectors3& buffer = m_chunk_f[static_cast<std::size_t>(c)];
-      buffer.middleCols(chunk.node_begin, chunk.node_end - chunk.node_begin).setZero();
-      scatter(chunk, buffer.data());
-    }
-  });
-  double* pf = f.data();
-  parallel::for_ranges(m_index_span, [&](Index i0, Index i1) {
-    for (const Chunk& chunk : m_chunks) {
-      const double* pb = m_chunk_f[static_cast<std::size_t>(&chunk - m_chunks.data())].data();
-      const Index begin = 3 * std::max(i0, chunk.node_begin), end = 3 * std::min(i1, chunk.node_end);
-      for (Index k = begin; k < end; ++k) pf[k] += pb[k];
-    }
-  });
-}
-
+// -f_i), and scatters it straight into the nodes by the fixed chunks of m_chunks.
 template <typename EdgeForce>
 void EdgeSprings::scatter_edges(Vectors3& f, EdgeForce&& edge_force) const {
-  chunked_scatter(f, [&](const Chunk& chunk, double* out) {
-    for (Index e = chunk.edge_begin; e < chunk.edge_end; ++e) {
+  m_chunks.run(f, [&](const ChunkedScatter::Chunk& chunk, double* out) {
+    for (Index e = chunk.begin; e < chunk.end; ++e) {
       const Edge& v = m_edges[static_cast<std::size_t>(e)];
       const Vec3 f_i = edge_force(e, v);
       const Index i = 3 * v[0], j = 3 * v[1];
@@ -199,7 +154,7 @@ void EdgeSprings::add_damping_forces(const Vectors3& v, Vectors3& f) const {
 
 // f_i += [b_d d d^T + b k (d d^T + t+ (I - d d^T))] (v_j - v_i), f_j -= the same, t+ = max(0, 1 - l0/l).
 // The hot loop of the implicit solves (once per CG iteration): one pass over the edges' cached
-// (d, t+), scattering per chunk (see m_chunks).
+// (d, t+), scattering by the fixed chunks of m_chunks.
 void EdgeSprings::add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
   const double bk = b * m_settings.stiffness;
   const double along_scale = m_settings.damping + bk;
@@ -213,14 +168,14 @@ void EdgeSprings::add_implicit_products(const Vectors3& v, double b, Vectors3& f
   const double* t = d2 + stride;
   const double* pv = v.data();
   // f_i = a d + bk t+ (dv - along d), a = (b_d + b k) along, along = d.dv, dv = v_j - v_i.
-  auto scatter = [&](const Chunk& chunk, double* out) {
-    Index e = chunk.edge_begin;
+  auto scatter = [&](const ChunkedScatter::Chunk& chunk, double* out) {
+    Index e = chunk.begin;
 #ifdef __SSE2__
     // Two edges per register, the same IEEE operations in the same order as the scalar loop below
     // (so the same bits); the scatter stays scalar and in edge order.
     const __m128d scale = _mm_set1_pd(along_scale), stiff = _mm_set1_pd(bk);
     auto pair = [&](const double* p, Index first, Index second) { return _mm_loadh_pd(_mm_load_sd(p + first), p + second); };
-    for (; e + 1 < chunk.edge_end; e += 2) {
+    for (; e + 1 < chunk.end; e += 2) {
       const Index i0 = 3 * edges[e][0], j0 = 3 * edges[e][1];
       const Index i1 = 3 * edges[e + 1][0], j1 = 3 * edges[e + 1][1];
       const __m128d dv0 = _mm_sub_pd(pair(pv, j0, j1), pair(pv, i0, i1));
@@ -251,7 +206,7 @@ void EdgeSprings::add_implicit_products(const Vectors3& v, double b, Vectors3& f
       out[j1 + 2] -= g[5];
     }
 #endif
-    for (; e < chunk.edge_end; ++e) {
+    for (; e < chunk.end; ++e) {
       const Index i = 3 * edges[e][0], j = 3 * edges[e][1];
       const double dv0 = pv[j] - pv[i], dv1 = pv[j + 1] - pv[i + 1], dv2 = pv[j + 2] - pv[i + 2];
       const double along = (d0[e] * dv0 + d1[e] * dv1) + d2[e] * dv2;
@@ -268,7 +223,7 @@ void EdgeSprings::add_implicit_products(const Vectors3& v, double b, Vectors3& f
       out[j + 2] -= f2;
     }
   };
-  chunked_scatter(f, scatter);
+  m_chunks.run(f, scatter);
 }
 
 void EdgeSprings::add_implicit_diagonal(double b, VectorXd& diag) const {

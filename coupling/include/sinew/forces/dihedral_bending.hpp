@@ -84,8 +84,6 @@ class DihedralBending final : public Force {
   std::vector<Index> m_incidence_offsets;
   std::vector<Index> m_incidence;
   std::vector<Index> m_incidence_slot;  ///< per incidence entry: 4 h + a, node i = hinge h's vertex a
-  mutable std::vector<double> m_rate;   ///< implicit products' scratch: -c w (g . v) per hinge
-  Vectors3 m_node_grad;                 ///< g_a per incidence entry (node-major copy of m_grad)
   Eigen::Matrix<double, 9, Eigen::Dynamic> m_node_ggt;  ///< per node: sum over its hinges of w g_a g_a^T
   std::vector<double> m_theta;          ///< angle per hinge at the cached state
   bool m_grad_valid = false;            ///< m_grad, m_theta, m_node_* hold the cached state's values
@@ -93,8 +91,9 @@ class DihedralBending final : public Force {
   bool m_implicit = false;  // set_implicit: the angle gradients are needed even without damping
   Vectors3 m_x;  // positions of the cached state (a plain copy: cheaper than per-hinge stencils)
   mutable ScatterGather<4> m_scatter;  // per-hinge forces on its four nodes, gathered per node
+  ChunkedScatter m_chunks;  // the implicit products' fixed chunks of hinges
   std::vector<Eigen::Matrix<double, 3, 4>> m_grad;
-  /// m_node_grad and m_node_ggt from m_grad; sets m_grad_valid.
+  /// m_node_ggt from m_grad; sets m_grad_valid.
   void cache_node_gradients();
 };
 

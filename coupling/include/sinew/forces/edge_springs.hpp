@@ -44,11 +44,7 @@ class EdgeSprings final : public Force {
   const EdgeSpringsSettings& settings() const { return m_settings; }
 
  private:
-  /// f += each edge's scatter into its two ends, chunk by chunk (see m_chunks): scatter(chunk, out)
-  /// adds the chunk's edges into `out`, a node-indexed flat array (f itself, or the chunk's buffer).
-  template <typename Scatter>
-  void chunked_scatter(Vectors3& f, Scatter&& scatter) const;
-  /// chunked_scatter of f_i = edge_force(e, edge) into end i and -f_i into end j, edge by edge.
+  /// m_chunks.run of f_i = edge_force(e, edge) into end i and -f_i into end j, edge by edge.
   template <typename EdgeForce>
   void scatter_edges(Vectors3& f, EdgeForce&& edge_force) const;
   /// Edge e's implicit product matrix b_d d d^T + b k (d d^T + t+ (I - d d^T)) at the cached state.
@@ -68,17 +64,9 @@ class EdgeSprings final : public Force {
   // divides nothing: columns 0-2 the unit direction d, column 3 the clamped transverse factor
   // t+ = max(0, 1 - l0/l), each contiguous over the edges (two edges per SIMD register).
   Eigen::Matrix<double, Eigen::Dynamic, 4> m_implicit_state;
-  // The products scatter each edge's f_i, -f_i straight into nodes, sequentially within fixed chunks
-  // of consecutive edges. A chunk count fixed by the edge count alone (never by the thread count)
-  // keeps the bits the same for any number of threads: with one chunk the scatter goes into f, with
-  // more each chunk adds into its own buffer over the node range its edges touch, and the buffers
-  // are added into f in chunk order.
-  struct Chunk {
-    Index edge_begin = 0, edge_end = 0;
-    Index node_begin = 0, node_end = 0;  // nodes touched by the chunk's edges
-  };
-  std::vector<Chunk> m_chunks;
-  mutable std::vector<Vectors3> m_chunk_f;  // per chunk (when more than one), 3 x node span
+  // Every per-edge loop scatters f_i, -f_i straight into the nodes by fixed chunks of edges
+  // (deterministic on any thread count).
+  ChunkedScatter m_chunks;
 };
 
 }  // namespace sinew
