@@ -160,6 +160,34 @@ TEST(System, StepAllocatesNothingAfterItsFirstCall) {
   EXPECT_EQ(g_allocations.load(), 0);
 }
 
+// Joint rows take part in the solves through projections (prepare_joints, every step): with the
+// same joints as the last step, their set-up reuses its storage too. The rod slides along x and turns
+// about it (a slider, the rows of a rigid solver's joint), a second body is tied to it by a row.
+TEST(System, StepWithJointRowsAllocatesNothingAfterItsFirstCall) {
+  System s;
+  scenes::HangingClothSettings settings;
+  settings.cloth.nx = settings.cloth.ny = 8;
+  const scenes::HangingCloth scene = scenes::add_hanging_cloth(s, settings);
+  RigidBodySettings second;
+  second.x = Vec3(0.0, 3.0, 0.0);
+  const Index other = s.add_rigid_body(second);
+  std::vector<JointRow> rows;
+  for (int axis : {1, 2}) {
+    rows.push_back({scene.rod, (Vec6() << Vec3::Unit(axis), Vec3::Zero()).finished()});
+    rows.push_back({scene.rod, (Vec6() << Vec3::Zero(), Vec3::Unit(axis)).finished()});
+  }
+  rows.push_back({scene.rod, (Vec6() << Vec3::UnitX(), Vec3::Zero()).finished(), other, (Vec6() << -Vec3::UnitX(), Vec3::Zero()).finished()});
+  s.set_joint_rows(rows);
+  const double dt = 0.9 * s.stable_dt();
+  s.step(dt);
+  g_allocations = 0;
+  g_count_allocations = true;
+  for (int i = 0; i < 5; ++i) s.step(dt);
+  g_count_allocations = false;
+  EXPECT_EQ(g_allocations.load(), 0);
+  EXPECT_NEAR(s.rigid_bodies().v(0, scene.rod), s.rigid_bodies().v(0, other), 1e-8);  // the row holds
+}
+
 // A cloth big enough for every parallel path (particle loops, CG vectors, chunked edge products):
 // 1 and 2 threads must give the same bits, with explicit and with implicit elasticity.
 TEST(System, OneAndTwoThreadsAreBitIdentical) {

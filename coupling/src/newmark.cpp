@@ -264,7 +264,7 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   stats.ms.forces += ms_since(t);
 
   t = Clock::now();
-  const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity || !m_joint_groups.empty();
+  const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity || m_joint_group_count > 0;
   m_refresh_preconditioner = true;
   const SolveResult result = solve(s, h, h, m_implicit_elasticity ? h : 0.0, linear_solve, history ? nullptr : &m_guess);
   stats.ms.cg += ms_since(t);
@@ -386,7 +386,7 @@ void Newmark::backward_euler_velocity(System& s, double dt, StepStats& stats) {
 
   t = Clock::now();
   const double beta = mode == BindingSpringStep4::implicit_half_step ? h : 0.0;
-  const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity || !m_joint_groups.empty();
+  const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity || m_joint_group_count > 0;
   m_refresh_preconditioner = false;
   const SolveResult result = solve(s, h, beta, m_implicit_elasticity ? h : 0.0, linear_solve);
   stats.ms.cg += ms_since(t);
@@ -418,7 +418,7 @@ void Newmark::extrapolate_velocity(System& s) {
     bodies.v.col(b) = 2.0 * m_y.rigid.col(b).head<3>() - bodies.v.col(b);
     bodies.w.col(b) = bodies.world_inverse_inertia(b) * L;
   }
-  if (!m_joint_groups.empty()) {
+  if (m_joint_group_count > 0) {
     // The joints hold at the end of the step too: extrapolation through v^{n+1/2} would otherwise
     // reflect a violation present at t^n (-err at t^{n+1}, +err at t^{n+2}, ...) instead of removing it.
     m_y.rigid.topRows<3>() = bodies.v;
@@ -689,21 +689,28 @@ void Newmark::project_constraints(GeneralizedVector& u) const {
     auto col = u.particles.col(c.particle);
     col -= c.normal.dot(col) * c.normal;
   }
-  for (const JointGroup& g : m_joint_groups) {
+  for (std::size_t gi = 0; gi < m_joint_group_count; ++gi) {
+    const JointGroup& g = m_joint_groups[gi];
     const Index k = static_cast<Index>(g.bodies.size());
     auto u_g = m_joint_scratch.head(6 * k);
+    auto coefficients = m_joint_coefficients.head(g.basis.cols());
     for (Index j = 0; j < k; ++j) u_g.segment<6>(6 * j) = u.rigid.col(g.bodies[j]);
-    u_g -= g.basis * (g.basis.transpose() * u_g);
+    coefficients.noalias() = g.basis.transpose() * u_g;
+    u_g.noalias() -= g.basis * coefficients;
     for (Index j = 0; j < k; ++j) u.rigid.col(g.bodies[j]) = u_g.segment<6>(6 * j);
   }
 }
 
 void Newmark::impose_joints(GeneralizedVector& u) const {
-  for (const JointGroup& g : m_joint_groups) {
+  for (std::size_t gi = 0; gi < m_joint_group_count; ++gi) {
+    const JointGroup& g = m_joint_groups[gi];
     const Index k = static_cast<Index>(g.bodies.size());
     auto u_g = m_joint_scratch.head(6 * k);
+    auto coefficients = m_joint_coefficients.head(g.basis.cols());
     for (Index j = 0; j < k; ++j) u_g.segment<6>(6 * j) = u.rigid.col(g.bodies[j]);
-    u_g += g.particular - g.basis * (g.basis.transpose() * u_g);
+    coefficients.noalias() = g.basis.transpose() * u_g;
+    u_g.noalias() -= g.basis * coefficients;
+    u_g += g.particular;
     for (Index j = 0; j < k; ++j) u.rigid.col(g.bodies[j]) = u_g.segment<6>(6 * j);
   }
 }
@@ -713,11 +720,13 @@ void Newmark::impose_joints(GeneralizedVector& u) const {
 // the rows (redundant rows, as two joints on one axis give, drop out by rank), and the joints'
 // reactions are the multipliers J^T lambda the projection removes.
 void Newmark::prepare_joints(const System& s) {
-  m_joint_groups.clear();
+  m_joint_group_count = 0;
   const auto& rows = s.m_joint_rows;
   if (rows.empty()) return;
   const auto& bodies = s.m_bodies;
-  std::vector<Index> root(static_cast<std::size_t>(m_r));
+  // Groups of dynamic bodies linked by rows (union-find), in the order of their first row.
+  std::vector<Index>& root = m_joint_root;
+  root.resize(static_cast<std::size_t>(m_r));
   for (Index b = 0; b < m_r; ++b) root[b] = b;
   auto find = [&](Index b) {
     while (root[b] != b) b = root[b] = root[root[b]];
@@ -729,53 +738,61 @@ void Newmark::prepare_joints(const System& s) {
       const Index a = find(row.body_a), b = find(row.body_b);
       if (a != b) root[std::max(a, b)] = std::min(a, b);
     }
-  std::vector<Index> group_of(static_cast<std::size_t>(m_r), -1);
-  std::vector<std::vector<Index>> group_rows;
+  std::vector<Index>& group_of = m_joint_group_of;
+  group_of.assign(static_cast<std::size_t>(m_r), -1);
   for (std::size_t i = 0; i < rows.size(); ++i) {
     const JointRow& row = rows[i];
     const Index body = dynamic(row.body_a) ? row.body_a : dynamic(row.body_b) ? row.body_b : -1;
     if (body < 0) continue;  // between prescribed bodies: nothing to solve
     const Index r = find(body);
     if (group_of[r] < 0) {
-      group_of[r] = static_cast<Index>(m_joint_groups.size());
-      m_joint_groups.emplace_back();
-      group_rows.emplace_back();
+      group_of[r] = static_cast<Index>(m_joint_group_count++);
+      if (m_joint_groups.size() < m_joint_group_count) m_joint_groups.emplace_back();
+      m_joint_groups[m_joint_group_count - 1].rows.clear();
+      m_joint_groups[m_joint_group_count - 1].bodies.clear();
     }
-    group_rows[group_of[r]].push_back(static_cast<Index>(i));
+    m_joint_groups[group_of[r]].rows.push_back(static_cast<Index>(i));
   }
   for (Index b = 0; b < m_r; ++b)
     if (m_dynamic_body[b] && group_of[find(b)] >= 0) m_joint_groups[group_of[find(b)]].bodies.push_back(b);
-  Index largest = 0;
-  for (std::size_t g = 0; g < m_joint_groups.size(); ++g) {
+  Index largest = 0, largest_rank = 0;
+  for (std::size_t g = 0; g < m_joint_group_count; ++g) {
     JointGroup& group = m_joint_groups[g];
     const Index k = static_cast<Index>(group.bodies.size());
     largest = std::max(largest, k);
     auto slot = [&](Index b) {
       return static_cast<Index>(std::lower_bound(group.bodies.begin(), group.bodies.end(), b) - group.bodies.begin());
     };
-    const Index m = static_cast<Index>(group_rows[g].size());
-    Eigen::MatrixXd J = Eigen::MatrixXd::Zero(m, 6 * k);
-    VectorXd t(m);
+    const Index m = static_cast<Index>(group.rows.size());
+    group.J.setZero(m, 6 * k);
+    group.t.resize(m);
     for (Index i = 0; i < m; ++i) {
-      const JointRow& row = rows[group_rows[g][i]];
-      t[i] = row.target;
+      const JointRow& row = rows[group.rows[i]];
+      group.t[i] = row.target;
       for (const auto& [body, j] : {std::pair{row.body_a, row.j_a}, std::pair{row.body_b, row.j_b}}) {
         if (body < 0) continue;
         if (m_dynamic_body[body]) {
-          J.row(i).segment<6>(6 * slot(body)) += j.transpose();
+          group.J.row(i).segment<6>(6 * slot(body)) += j.transpose();
         } else {
-          t[i] -= j.head<3>().dot(bodies.v.col(body)) + j.tail<3>().dot(bodies.w.col(body));
+          group.t[i] -= j.head<3>().dot(bodies.v.col(body)) + j.tail<3>().dot(bodies.w.col(body));
         }
       }
     }
-    const Eigen::JacobiSVD<Eigen::MatrixXd> svd(J, Eigen::ComputeThinU | Eigen::ComputeThinV);
-    const VectorXd& sigma = svd.singularValues();
+    // The SVD keeps its work space between steps (Eigen reallocates only when the shape changes).
+    group.svd.compute(group.J, Eigen::ComputeThinU | Eigen::ComputeThinV);
+    const VectorXd& sigma = group.svd.singularValues();
     Index rank = 0;
     while (rank < sigma.size() && sigma[rank] > 1e-10 * sigma[0]) ++rank;
-    group.basis = svd.matrixV().leftCols(rank);
-    group.particular = group.basis * (svd.matrixU().leftCols(rank).transpose() * t).cwiseQuotient(sigma.head(rank));
+    largest_rank = std::max(largest_rank, rank);
+    group.basis = group.svd.matrixV().leftCols(rank);
+    group.coefficients.resize(rank);
+    group.coefficients.noalias() = group.svd.matrixU().leftCols(rank).transpose() * group.t;
+    group.coefficients.array() /= sigma.head(rank).array();
+    group.particular.resize(6 * k);
+    group.particular.noalias() = group.basis * group.coefficients;
   }
   m_joint_scratch.resize(6 * largest);
+  m_joint_coefficients.resize(largest_rank);
 }
 
 // Preconditioned conjugate gradients on the symmetric positive definite S = M + h W^T(D + beta K)W

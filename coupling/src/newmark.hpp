@@ -7,6 +7,8 @@
 
 #include <Eigen/Core>
 
+#include <Eigen/SVD>
+
 #include <vector>
 
 namespace sinew {
@@ -95,9 +97,17 @@ class Newmark {
     std::vector<Index> bodies;  // ascending
     Eigen::MatrixXd basis;      // 6k x rank, orthonormal, spanning the rows
     VectorXd particular;        // 6k, in the span: the least-norm twists on the targets
+    // Set-up scratch, kept so that a step whose joints have the same shape as the last allocates nothing.
+    std::vector<Index> rows;    // indices into the system's joint rows
+    Eigen::MatrixXd J;
+    VectorXd t, coefficients;
+    Eigen::JacobiSVD<Eigen::MatrixXd> svd;
   };
+  // The first m_joint_group_count entries are this step's groups; entries past it keep their storage.
   std::vector<JointGroup> m_joint_groups;
-  mutable VectorXd m_joint_scratch;
+  std::size_t m_joint_group_count = 0;
+  std::vector<Index> m_joint_root, m_joint_group_of;
+  mutable VectorXd m_joint_scratch, m_joint_coefficients;
   AggregationMultigrid m_multigrid;  // StepSettings::multigrid
   bool m_use_multigrid = false;      // this solve preconditions with the multigrid
   // Step 1 builds the preconditioner; step 4 keeps it when it was built for the same operator
