@@ -192,11 +192,14 @@ std::vector<Setting> sweep(const std::string& system) {
     // linearised implicit elasticity's own first-order error dominates, so the sweep is over ticks.
     for (int ticks : {1, 2, 4, 8, 16}) out.push_back({system, ticks, 1e-5});
     out.push_back({system, 4, 1e-7});
+    // Looser tolerances: fewer iterations per solve where the step's own error dominates anyway.
+    for (int ticks : {1, 4}) out.push_back({system, ticks, 1e-3});
+    out.push_back({system, 1, 1e-1});
   } else if (system == "sinew-multigrid") {
     // Nothing limits the step: one tick per frame is the cheapest; looser tolerances trade the CG's
     // error against the step's own.
     for (int ticks : {1, 2, 4}) out.push_back({system, ticks, 1e-5});
-    for (double tol : {1e-4, 1e-3}) out.push_back({system, 1, tol});
+    for (double tol : {1e-4, 1e-3, 1e-2, 1e-1}) out.push_back({system, 1, tol});
   } else if (system == "bullet-classic") {
     for (int ticks : {1, 2, 4, 8, 16, 32}) out.push_back({system, ticks});
   } else {
