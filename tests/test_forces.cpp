@@ -784,6 +784,28 @@ TEST(DihedralBending, PairedKernelGivesEachHingeTheBitsOfOneHingeAlone) {
   }
 }
 
+// The force's angle: within 7.1 degrees of the rest angle it comes from a series rather than atan2.
+// Read back from the force on x3, f_3 = -2 k_b w delta g_3 with g_3 = -|e| n2 / |n2|^2, it must be
+// the fold angle to round-off on both sides of that threshold, near flat, and far from rest (on a
+// flat and on a curved rest shape, so the angle is measured from theta0).
+TEST(DihedralBending, ForceAngleIsTheFoldAngleToRoundOff) {
+  const SingleHinge hinge;
+  const double k_b = 0.05;
+  for (const double rest_angle : {0.0, 0.7}) {
+    const Vectors3 rest = hinge.folded_by(rest_angle);
+    const DihedralBending bending({{0, 1, 2, 3}}, rest, {.stiffness = k_b});
+    const double w = bending.weights()[0];
+    for (double d : {-3.0, -0.5, -0.13, -0.124, -0.02, -1e-6, 1e-12, 1e-5, 0.05, 0.1239, 0.1241, 0.2, 1.0, 2.9}) {
+      const Vectors3 x = hinge.folded_by(rest_angle + d);
+      Vectors3 f = Vectors3::Zero(3, 4);
+      bending.add_elastic_forces(x, f);
+      const Vec3 e = x.col(1) - x.col(0), n2 = (x.col(3) - x.col(0)).cross(e);
+      const double delta = f.col(3).dot(n2) / (2.0 * k_b * w * e.norm());
+      EXPECT_NEAR(delta, d, 1e-14 * std::abs(d) + 1e-16) << "rest " << rest_angle << ", delta " << d;
+    }
+  }
+}
+
 TEST(DihedralBending, FoldedFlatHingeHasAngleAndClosedFormEnergy) {
   const SingleHinge hinge;
   const double k_b = 0.05;

@@ -79,14 +79,16 @@ class DihedralBending final : public Force {
   std::vector<Hinge> m_hinges;
   DihedralBendingSettings m_settings;
   std::vector<double> m_rest_angle;
+  /// (cos theta0, sin theta0) per hinge up to a positive power of two, as the kinematics compute them.
+  std::vector<std::array<double, 2>> m_rest_direction;
   std::vector<double> m_weight;
   std::vector<std::array<double, 4>> m_dt_weights;  ///< stable_dt weights w_{e,a}
   std::vector<Index> m_incidence_offsets;
   std::vector<Index> m_incidence;
   std::vector<Index> m_incidence_slot;  ///< per incidence entry: 4 h + a, node i = hinge h's vertex a
   Eigen::Matrix<double, 9, Eigen::Dynamic> m_node_ggt;  ///< per node: sum over its hinges of w g_a g_a^T
-  std::vector<double> m_theta;          ///< angle per hinge at the cached state
-  bool m_grad_valid = false;            ///< m_grad, m_theta, m_node_* hold the cached state's values
+  std::vector<double> m_delta;          ///< theta - theta0 per hinge at the cached state
+  bool m_grad_valid = false;            ///< m_grad, m_delta, m_node_ggt hold the cached state's values
   // Position state: hinge vertex positions (for the differential) and d theta / dx (for damping).
   bool m_implicit = false;  // set_implicit: the angle gradients are needed even without damping
   Vectors3 m_x;  // positions of the cached state (a plain copy: cheaper than per-hinge stencils)
