@@ -19,6 +19,7 @@
 
 #include <LinearMath/btScalar.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -214,13 +215,28 @@ struct Row {
   int n = 0, ticks = 0;
   double ms_per_sim_s = kInfinity, rms_t2 = kInfinity;
   bool ok = false;
+  bool timed_only = false;  ///< no error measured (not an equal-error comparison)
 };
 
 /// The speed goals, each judged from the sweep: the coupled tick at 40 x 40 and 1/240 s against
 /// each peer's, and at equal error the time per simulated second of sinew's cheapest setting that is
 /// at least as accurate as each peer setting.
-void print_goals(const std::vector<Row>& rows, const Options& o) {
+void print_goals(std::vector<Row> rows, const Options& o) {
   std::printf("\n## goals\n");
+  // The deformable world at 40 x 40 lies outside the default sweep (--deformable-max 20: its
+  // converged reference alone takes minutes); for the 20x goal its 1/240 s tick is timed here alone,
+  // without an error.
+  const bool sinew_40 = std::any_of(rows.begin(), rows.end(), [](const Row& r) { return r.n == 40 && r.ticks == 4 && is_sinew(r.system); });
+  const bool deformable_40 = std::any_of(rows.begin(), rows.end(), [](const Row& r) { return r.n == 40 && r.system == "bullet-deformable"; });
+  if (sinew_40 && !deformable_40) {
+    CurtainSpec spec;
+    spec.n = 40;
+    Row r{"bullet-deformable", 40, 4, timed({"bullet-deformable", 4}, spec, o.threads, 3, 30)};
+    r.ok = std::isfinite(r.ms_per_sim_s);
+    r.timed_only = true;
+    rows.push_back(r);
+    std::printf("(bullet-deformable at 40x40, 4 ticks: timed alone, median of 3 runs of 30 frames)\n");
+  }
   for (const Row& r : rows) {
     if (r.n != 40 || r.ticks != 4 || is_sinew(r.system) || !r.ok) continue;
     double best = kInfinity;
@@ -235,7 +251,7 @@ void print_goals(const std::vector<Row>& rows, const Options& o) {
   }
   int met = 0, total = 0;
   for (const Row& peer : rows) {
-    if (is_sinew(peer.system) || !peer.ok) continue;
+    if (is_sinew(peer.system) || !peer.ok || peer.timed_only) continue;
     double best = kInfinity;
     std::string which;
     int ticks = 0;
