@@ -6,3 +6,13 @@
 
 extern std::atomic<bool> g_count_allocations;
 extern std::atomic<long> g_allocations;
+
+/// The number of heap allocations while run() runs.
+template <typename Run>
+long allocations_during(Run&& run) {
+  g_allocations = 0;
+  g_count_allocations = true;
+  run();
+  g_count_allocations = false;
+  return g_allocations.load();
+}

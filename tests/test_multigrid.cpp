@@ -263,11 +263,10 @@ TEST(Multigrid, OneAndTwoThreadsAreBitIdentical) {
 TEST(Multigrid, StepAllocatesNothingAfterItsFirstCall) {
   System s = hanging_cloth(30, true, 2);
   s.step(1.0 / 60);  // builds the hierarchy
-  g_allocations = 0;
-  g_count_allocations = true;
-  for (int i = 0; i < 3; ++i) s.step(1.0 / 60);
-  g_count_allocations = false;
-  EXPECT_EQ(g_allocations.load(), 0);
+  EXPECT_EQ(allocations_during([&] {
+              for (int i = 0; i < 3; ++i) s.step(1.0 / 60);
+            }),
+            0);
 }
 
 // Implicit bending lifts bending's stable-step limit: at four times that limit the explicit step

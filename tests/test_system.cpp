@@ -148,16 +148,11 @@ TEST(System, StepAllocatesNothingAfterItsFirstCall) {
   settings.cloth.nx = settings.cloth.ny = 10;
   scenes::add_hanging_cloth(s, settings);
   const double dt = 0.9 * s.stable_dt();
-  g_allocations = 0;
-  g_count_allocations = true;
-  s.step(dt);  // the first call sets up scratch buffers: the counter must see it
-  g_count_allocations = false;
-  EXPECT_GT(g_allocations.load(), 0);
-  g_allocations = 0;
-  g_count_allocations = true;
-  for (int i = 0; i < 5; ++i) s.step(dt);
-  g_count_allocations = false;
-  EXPECT_EQ(g_allocations.load(), 0);
+  EXPECT_GT(allocations_during([&] { s.step(dt); }), 0);  // the first call sets up scratch buffers: the counter must see it
+  EXPECT_EQ(allocations_during([&] {
+              for (int i = 0; i < 5; ++i) s.step(dt);
+            }),
+            0);
 }
 
 // Joint rows take part in the solves through projections (prepare_joints, every step): with the
@@ -180,11 +175,10 @@ TEST(System, StepWithJointRowsAllocatesNothingAfterItsFirstCall) {
   s.set_joint_rows(rows);
   const double dt = 0.9 * s.stable_dt();
   s.step(dt);
-  g_allocations = 0;
-  g_count_allocations = true;
-  for (int i = 0; i < 5; ++i) s.step(dt);
-  g_count_allocations = false;
-  EXPECT_EQ(g_allocations.load(), 0);
+  EXPECT_EQ(allocations_during([&] {
+              for (int i = 0; i < 5; ++i) s.step(dt);
+            }),
+            0);
   EXPECT_NEAR(s.rigid_bodies().v(0, scene.rod), s.rigid_bodies().v(0, other), 1e-8);  // the row holds
 }
 
@@ -221,11 +215,10 @@ TEST(System, ImplicitStepOfALargeClothOnTwoThreadsAllocatesNothing) {
   s.step_settings().implicit_elasticity = true;
   s.step_settings().threads = 2;
   s.step(1.0 / 240);  // sets up scratch buffers and the thread pool
-  g_allocations = 0;
-  g_count_allocations = true;
-  for (int i = 0; i < 3; ++i) s.step(1.0 / 240);
-  g_count_allocations = false;
-  EXPECT_EQ(g_allocations.load(), 0);
+  EXPECT_EQ(allocations_during([&] {
+              for (int i = 0; i < 3; ++i) s.step(1.0 / 240);
+            }),
+            0);
 }
 
 // Figure 5: a sheet with a T-junction, stretched. Unbound, the T-junction node leaves the coarse

@@ -250,14 +250,16 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   // unknowns (explicit in the implicit terms): exact for motion they do not resist (free fall,
   // rigid translation), so solve() takes it when it is exact; far off where they are stiff, where
   // v^n is kept.
-  for (Index i = 0; i < m_n && !history; ++i)
-    m_guess.particles.col(i) = m_dynamic_mask[i] > 0.0 ? Vec3(m_c.particles.col(i) / m_dof_mass[i]) : Vec3(m_v_n.col(i));
-  for (Index b = 0; b < m_r && !history; ++b) {
-    if (m_dynamic_body[b]) {
-      m_guess.rigid.col(b).head<3>() = m_c.rigid.col(b).head<3>() / s.m_bodies.mass[b];
-      m_guess.rigid.col(b).tail<3>() = m_body_I[b].inverse() * m_c.rigid.col(b).tail<3>();
-    } else {
-      m_guess.rigid.col(b) = m_y.rigid.col(b);
+  if (!history) {
+    for (Index i = 0; i < m_n; ++i)
+      m_guess.particles.col(i) = m_dynamic_mask[i] > 0.0 ? Vec3(m_c.particles.col(i) / m_dof_mass[i]) : Vec3(m_v_n.col(i));
+    for (Index b = 0; b < m_r; ++b) {
+      if (m_dynamic_body[b]) {
+        m_guess.rigid.col(b).head<3>() = m_c.rigid.col(b).head<3>() / s.m_bodies.mass[b];
+        m_guess.rigid.col(b).tail<3>() = m_body_I[b].inverse() * m_c.rigid.col(b).tail<3>();
+      } else {
+        m_guess.rigid.col(b) = m_y.rigid.col(b);
+      }
     }
   }
   m_constraints.clear();  // collisions are inactive in the first solve
@@ -689,19 +691,14 @@ void Newmark::project_constraints(GeneralizedVector& u) const {
     auto col = u.particles.col(c.particle);
     col -= c.normal.dot(col) * c.normal;
   }
-  for (std::size_t gi = 0; gi < m_joint_group_count; ++gi) {
-    const JointGroup& g = m_joint_groups[gi];
-    const Index k = static_cast<Index>(g.bodies.size());
-    auto u_g = m_joint_scratch.head(6 * k);
-    auto coefficients = m_joint_coefficients.head(g.basis.cols());
-    for (Index j = 0; j < k; ++j) u_g.segment<6>(6 * j) = u.rigid.col(g.bodies[j]);
-    coefficients.noalias() = g.basis.transpose() * u_g;
-    u_g.noalias() -= g.basis * coefficients;
-    for (Index j = 0; j < k; ++j) u.rigid.col(g.bodies[j]) = u_g.segment<6>(6 * j);
-  }
+  project_joint_groups(u, false);
 }
 
-void Newmark::impose_joints(GeneralizedVector& u) const {
+void Newmark::impose_joints(GeneralizedVector& u) const { project_joint_groups(u, true); }
+
+// Each joint group's twists u_g -> u_g - Q Q^T u_g (the rows' null space), plus the particular
+// solution when the rows' targets are imposed; in scratch kept between steps (no allocation).
+void Newmark::project_joint_groups(GeneralizedVector& u, bool impose_targets) const {
   for (std::size_t gi = 0; gi < m_joint_group_count; ++gi) {
     const JointGroup& g = m_joint_groups[gi];
     const Index k = static_cast<Index>(g.bodies.size());
@@ -710,7 +707,7 @@ void Newmark::impose_joints(GeneralizedVector& u) const {
     for (Index j = 0; j < k; ++j) u_g.segment<6>(6 * j) = u.rigid.col(g.bodies[j]);
     coefficients.noalias() = g.basis.transpose() * u_g;
     u_g.noalias() -= g.basis * coefficients;
-    u_g += g.particular;
+    if (impose_targets) u_g += g.particular;
     for (Index j = 0; j < k; ++j) u.rigid.col(g.bodies[j]) = u_g.segment<6>(6 * j);
   }
 }

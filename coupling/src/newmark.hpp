@@ -60,6 +60,7 @@ class Newmark {
   void prepare_joints(const System& s);
   /// Sets the joint rows' components of the rigid twists in u to their targets (the rest is kept).
   void impose_joints(GeneralizedVector& u) const;
+  void project_joint_groups(GeneralizedVector& u, bool impose_targets) const;
   /// Copies each synchronized soft particle's target state into it (section 3.1).
   void synchronize(System& s, bool positions, bool velocities);
   /// Adds each synchronized soft row's force to its target row and clears the soft row.
