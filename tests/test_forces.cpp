@@ -4,6 +4,7 @@
 #include "sinew/forces/dihedral_bending.hpp"
 #include "sinew/forces/edge_springs.hpp"
 #include "sinew/forces/triangle_membrane.hpp"
+#include "sinew/parallel.hpp"
 
 #include <gtest/gtest.h>
 
@@ -465,6 +466,53 @@ TEST(EdgeSprings, ChunkedProductsMatchPerEdgeSumsOnAnyThreadCount) {
   const Vectors3 one = product(1), two = product(2);
   EXPECT_LT(relative_error(one, expected), 1e-14);
   EXPECT_TRUE(one == two);
+}
+
+// ChunkedScatter: elements in grid order (each chunk's nodes a band) add straight into f, even chunks
+// then odd; the same elements shuffled (chunks spanning every node) fall back to per-chunk buffers.
+// Either way every node gets its terms to round-off, with the same bits on one and two threads.
+TEST(ChunkedScatter, DirectAndBufferedChunksGiveEachNodeItsTermsOnAnyThreadCount) {
+  const Index side = 60, nodes = side * side;
+  std::vector<std::array<Index, 2>> grid;
+  for (Index j = 0; j < side; ++j)
+    for (Index i = 0; i + 1 < side; ++i) {
+      grid.push_back({j * side + i, j * side + i + 1});
+      if (j + 1 < side) grid.push_back({j * side + i, (j + 1) * side + i});
+    }
+  std::vector<std::array<Index, 2>> shuffled = grid;
+  std::shuffle(shuffled.begin(), shuffled.end(), std::mt19937(31));
+  ASSERT_GE(static_cast<Index>(grid.size()), parallel::kMinParallelItems);
+  for (const auto* elements : {&grid, &shuffled}) {
+    const ChunkedScatter chunks(*elements, nodes);
+    ASSERT_GT(chunks.chunks().size(), 2u);
+    EXPECT_EQ(chunks.direct(), elements == &grid);
+    // Element e adds (e + 1) (1, 2, 3) to its first node and subtracts it from its second.
+    auto scatter = [&](const ChunkedScatter::Chunk& chunk, double* out) {
+      for (Index e = chunk.begin; e < chunk.end; ++e) {
+        const auto& [a, b] = (*elements)[static_cast<std::size_t>(e)];
+        for (Index c = 0; c < 3; ++c) {
+          out[3 * a + c] += static_cast<double>((e + 1) * (c + 1));
+          out[3 * b + c] -= static_cast<double>((e + 1) * (c + 1));
+        }
+      }
+    };
+    Vectors3 expected = Vectors3::Constant(3, nodes, 0.5);
+    for (std::size_t e = 0; e < elements->size(); ++e)
+      for (Index c = 0; c < 3; ++c) {
+        expected(c, (*elements)[e][0]) += static_cast<double>((e + 1) * (c + 1));
+        expected(c, (*elements)[e][1]) -= static_cast<double>((e + 1) * (c + 1));
+      }
+    auto run = [&](int threads) {
+      set_thread_count(threads);
+      Vectors3 f = Vectors3::Constant(3, nodes, 0.5);
+      chunks.run(f, scatter);
+      set_thread_count(1);
+      return f;
+    };
+    const Vectors3 one = run(1), two = run(2);
+    EXPECT_TRUE(one == expected) << "integer terms: exact in any order";
+    EXPECT_TRUE(one == two);
+  }
 }
 
 TEST(EdgeSprings, ForcesBalanceAndEnergyIsRigidInvariant) {

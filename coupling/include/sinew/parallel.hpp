@@ -68,10 +68,14 @@ double sum(Index n, Term&& term) {
 
 /// Element loops that add each element's terms straight into its nodes, sequentially within fixed
 /// chunks of consecutive elements. The chunk count depends on the element count alone (never on the
-/// thread count), which keeps the bits the same for any number of threads: with one chunk the terms
-/// go into f, with more each chunk adds into its own buffer over the node range its elements touch,
-/// in parallel, and the buffers are then added into f in chunk order. One pass over the elements and
-/// no per-element storage (ScatterGather's alternative), at the price of the buffers' node ranges.
+/// thread count), which keeps the bits the same for any number of threads. With one chunk the terms
+/// go into f. With more, and when every other chunk's node range is disjoint from the others' of its
+/// parity (consecutive elements touch nearby nodes, as a grid's rows of edges or hinges do), the
+/// even chunks add straight into f in parallel, then the odd ones: each node receives its terms in
+/// element order, no two threads touch a node at once, and there is no buffer to clear or add up.
+/// Otherwise each chunk adds into its own buffer over the node range its elements touch, in
+/// parallel, and the buffers are then added into f in chunk order. One pass over the elements and no
+/// per-element storage (ScatterGather's alternative).
 class ChunkedScatter {
  public:
   struct Chunk {
@@ -96,14 +100,29 @@ class ChunkedScatter {
       if (chunk.node_begin > chunk.node_end) chunk.node_begin = chunk.node_end;
       m_chunks.push_back(chunk);
     }
-    if (chunks > 1) m_buffers.assign(static_cast<std::size_t>(chunks), Vectors3::Zero(3, nodes));
+    m_direct = chunks > 1;
+    for (std::size_t a = 0; a < m_chunks.size(); ++a)
+      for (std::size_t b = a + 2; b < m_chunks.size(); b += 2)
+        if (m_chunks[a].node_begin < m_chunks[b].node_end && m_chunks[b].node_begin < m_chunks[a].node_end) m_direct = false;
+    if (chunks > 1 && !m_direct) m_buffers.assign(static_cast<std::size_t>(chunks), Vectors3::Zero(3, nodes));
   }
+  /// The chunks add straight into f, even chunks then odd ones (see above).
+  bool direct() const { return m_direct; }
   const std::vector<Chunk>& chunks() const { return m_chunks; }
   /// f += the terms scatter(chunk, out) adds into `out`, a flat node-indexed array (3 per node).
   template <typename Scatter>
   void run(Vectors3& f, Scatter&& scatter) const {
     if (m_chunks.size() == 1) {
       scatter(m_chunks[0], f.data());
+      return;
+    }
+    if (m_direct) {
+      double* pf = f.data();
+      const auto count = static_cast<Index>(m_chunks.size());
+      for (Index parity = 0; parity < 2; ++parity)
+        parallel::for_ranges_when(true, (count - parity + 1) / 2, [&](Index k0, Index k1) {
+          for (Index k = k0; k < k1; ++k) scatter(m_chunks[static_cast<std::size_t>(2 * k + parity)], pf);
+        });
       return;
     }
     parallel::for_ranges_when(true, static_cast<Index>(m_chunks.size()), [&](Index c0, Index c1) {
@@ -126,8 +145,9 @@ class ChunkedScatter {
 
  private:
   std::vector<Chunk> m_chunks;
-  mutable std::vector<Vectors3> m_buffers;  // per chunk (when more than one), 3 x nodes
+  mutable std::vector<Vectors3> m_buffers;  // per chunk (more than one, not direct), 3 x nodes
   Index m_nodes = 0;
+  bool m_direct = false;
 };
 
 /// Element forces add per-element contributions into nodes. To do that in parallel and
