@@ -81,7 +81,43 @@ void merge_pairs(const std::vector<std::array<Index, 2>>& pairs, const std::vect
   }
 }
 
+/// coarse.col(a) = sum of fine.col(i) over the members i of aggregate a, ascending.
+template <int Rows>
+void restrict_to(const AggregationMultigrid::Members& members, const Eigen::Matrix<double, Rows, Eigen::Dynamic>& fine,
+                 Eigen::Matrix<double, Rows, Eigen::Dynamic>& coarse) {
+  const auto n = static_cast<Index>(members.offset.size()) - 1;
+  parallel::for_ranges(n, [&](Index a0, Index a1) {
+    for (Index a = a0; a < a1; ++a) {
+      Eigen::Matrix<double, Rows, 1> sum = Eigen::Matrix<double, Rows, 1>::Zero();
+      for (Index k = members.offset[static_cast<std::size_t>(a)]; k < members.offset[static_cast<std::size_t>(a) + 1]; ++k)
+        sum += fine.col(members.index[static_cast<std::size_t>(k)]);
+      coarse.col(a) = sum;
+    }
+  });
+}
+
+/// fine.col(i) += coarse.col(agg[i]) where agg[i] >= 0.
+void prolong_add(const std::vector<Index>& agg, const Vectors3& coarse, Vectors3& fine) {
+  parallel::for_ranges(static_cast<Index>(agg.size()), [&](Index i0, Index i1) {
+    for (Index i = i0; i < i1; ++i) {
+      const Index a = agg[static_cast<std::size_t>(i)];
+      if (a >= 0) fine.col(i) += coarse.col(a);
+    }
+  });
+}
+
 }  // namespace
+
+void AggregationMultigrid::Members::build(const std::vector<Index>& agg, Index aggregates) {
+  offset.assign(static_cast<std::size_t>(aggregates) + 1, 0);
+  for (Index a : agg)
+    if (a >= 0) ++offset[static_cast<std::size_t>(a) + 1];
+  for (std::size_t k = 1; k < offset.size(); ++k) offset[k] += offset[k - 1];
+  index.resize(static_cast<std::size_t>(offset.back()));
+  std::vector<Index> fill(offset.begin(), offset.end() - 1);
+  for (std::size_t i = 0; i < agg.size(); ++i)
+    if (agg[i] >= 0) index[static_cast<std::size_t>(fill[static_cast<std::size_t>(agg[i])]++)] = static_cast<Index>(i);
+}
 
 void AggregationMultigrid::reset() {
   m_built = false;
@@ -184,12 +220,8 @@ void AggregationMultigrid::begin(const VectorXd& unknown, const Blocks& diag, do
   }
   if (unknown.size() != m_particles) fail("multigrid: ", unknown.size(), " particles, built for ", m_particles);
   Level& l1 = m_levels.front();
-  l1.diag.setZero();
+  restrict_to(m_members0, diag, l1.diag);
   l1.pair_block.setZero();
-  for (Index i = 0; i < m_particles; ++i) {
-    const Index a = m_agg0[static_cast<std::size_t>(i)];
-    if (a >= 0) l1.diag.col(a) += diag.col(i);
-  }
 }
 
 void AggregationMultigrid::add_to_level1(Index code, const Mat3& block) {
@@ -241,6 +273,7 @@ void AggregationMultigrid::build(const VectorXd& unknown) {
   m_agg0.assign(static_cast<std::size_t>(n), -1);
   for (Index i = 0; i < n; ++i)
     if (local[static_cast<std::size_t>(i)] >= 0) m_agg0[static_cast<std::size_t>(i)] = agg_local[static_cast<std::size_t>(local[static_cast<std::size_t>(i)])];
+  m_members0.build(m_agg0, n1);
 
   // Level 1 and its plan from the recorded pairs (in particle numbering, -1 off the unknowns).
   m_levels.clear();
@@ -284,6 +317,7 @@ void AggregationMultigrid::build(const VectorXd& unknown) {
     next.n = coarse_n;
     coarse_pairs(fine.pairs, agg, next.pairs, fine.pair_plan);
     fine.agg = std::move(agg);
+    fine.members.build(fine.agg, coarse_n);
     m_levels.push_back(std::move(next));
     allocate(m_levels.back());
     assemble_next(l);
@@ -302,9 +336,8 @@ void AggregationMultigrid::build(const VectorXd& unknown) {
 void AggregationMultigrid::assemble_next(int l) {
   const Level& fine = m_levels[static_cast<std::size_t>(l)];
   Level& coarse = m_levels[static_cast<std::size_t>(l) + 1];
-  coarse.diag.setZero();
+  restrict_to(fine.members, fine.diag, coarse.diag);
   coarse.pair_block.setZero();
-  for (Index i = 0; i < fine.n; ++i) coarse.diag.col(fine.agg[static_cast<std::size_t>(i)]) += fine.diag.col(i);
   for (std::size_t k = 0; k < fine.pairs.size(); ++k) {
     const Index code = fine.pair_plan[k];
     const auto block = block_at(fine.pair_block, static_cast<Index>(k));
@@ -478,10 +511,9 @@ void AggregationMultigrid::cycle(int k) {
   jacobi(level.n, level.omega, level.inverse, level.b, level.x, false);  // pre-smoothing from zero
   matvec(level, level.x, level.t);
   residual_in_place(level.n, level.b, level.t);
-  next.b.setZero();
-  for (Index i = 0; i < level.n; ++i) next.b.col(level.agg[static_cast<std::size_t>(i)]) += level.t.col(i);
+  restrict_to(level.members, level.t, next.b);
   cycle(k + 1);
-  for (Index i = 0; i < level.n; ++i) level.x.col(i) += next.x.col(level.agg[static_cast<std::size_t>(i)]);
+  prolong_add(level.agg, next.x, level.x);
   matvec(level, level.x, level.t);  // post-smoothing
   residual_in_place(level.n, level.b, level.t);
   jacobi(level.n, level.omega, level.inverse, level.t, level.x, true);
@@ -492,16 +524,9 @@ void AggregationMultigrid::apply(const Vectors3& r, Vectors3& z, const Blocks& i
   const Index n = m_particles;
   Level& l1 = m_levels.front();
   jacobi(n, kOmega0, inverse0, r, z, false);  // z is zero off the unknowns (inverse0 is)
-  l1.b.setZero();
-  for (Index i = 0; i < n; ++i) {
-    const Index a = m_agg0[static_cast<std::size_t>(i)];
-    if (a >= 0) l1.b.col(a) += r.col(i);
-  }
+  restrict_to(m_members0, r, l1.b);
   cycle(0);
-  for (Index i = 0; i < n; ++i) {
-    const Index a = m_agg0[static_cast<std::size_t>(i)];
-    if (a >= 0) z.col(i) += l1.x.col(a);
-  }
+  prolong_add(m_agg0, l1.x, z);
 }
 
 }  // namespace sinew

@@ -40,6 +40,12 @@ namespace sinew {
 class AggregationMultigrid final : public PairBlockSink {
  public:
   using Blocks = Eigen::Matrix<double, 9, Eigen::Dynamic>;
+  /// The nodes of each aggregate, ascending (CSR): restriction gathers them per aggregate, in
+  /// parallel and in the order a serial scatter would add them.
+  struct Members {
+    std::vector<Index> offset, index;
+    void build(const std::vector<Index>& agg, Index aggregates);
+  };
 
   /// The coarsest level has at most this many nodes (a dense Cholesky of 3 n unknowns).
   static constexpr Index kCoarsestNodes = 48;
@@ -85,6 +91,7 @@ class AggregationMultigrid final : public PairBlockSink {
     // To the next level (empty on the coarsest): aggregate of each node, and where each pair's block
     // goes there (plan code, see encode_*).
     std::vector<Index> agg;
+    Members members;  // agg's inverse
     std::vector<Index> pair_plan;
     Vectors3 x, b, t;  // solution, right-hand side, scratch (3 x n)
     double omega = 0.5;  // Jacobi damping of the smoother (estimate_omegas)
@@ -117,6 +124,7 @@ class AggregationMultigrid final : public PairBlockSink {
   double m_scale = 0.0;
   Index m_particles = 0;
   std::vector<Index> m_agg0;       // particle -> level-1 node, -1 off the unknowns
+  Members m_members0;
   std::vector<Index> m_plan0;      // per pair the forces pass: plan code on level 1
   std::size_t m_cursor = 0;
   std::vector<std::array<Index, 2>> m_recorded_pairs;  // first update only
