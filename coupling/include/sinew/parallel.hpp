@@ -69,10 +69,11 @@ double sum(Index n, Term&& term) {
 /// Element loops that add each element's terms straight into its nodes, sequentially within fixed
 /// chunks of consecutive elements. The chunk count depends on the element count alone (never on the
 /// thread count), which keeps the bits the same for any number of threads. With one chunk the terms
-/// go into f. With more, and when every other chunk's node range is disjoint from the others' of its
-/// parity (consecutive elements touch nearby nodes, as a grid's rows of edges or hinges do), the
-/// even chunks add straight into f in parallel, then the odd ones: each node receives its terms in
-/// element order, no two threads touch a node at once, and there is no buffer to clear or add up.
+/// go into f. With four or more (so that each half still runs in parallel), and when every other
+/// chunk's node range is disjoint from the others' of its parity (consecutive elements touch nearby
+/// nodes, as a grid's rows of edges or hinges do), the even chunks add straight into f in parallel,
+/// then the odd ones: each node receives its terms in element order, no two threads touch a node at
+/// once, and there is no buffer to clear or add up.
 /// Otherwise each chunk adds into its own buffer over the node range its elements touch, in
 /// parallel, and the buffers are then added into f in chunk order. One pass over the elements and no
 /// per-element storage (ScatterGather's alternative).
@@ -100,7 +101,7 @@ class ChunkedScatter {
       if (chunk.node_begin > chunk.node_end) chunk.node_begin = chunk.node_end;
       m_chunks.push_back(chunk);
     }
-    m_direct = chunks > 1;
+    m_direct = chunks >= 4;
     for (std::size_t a = 0; a < m_chunks.size(); ++a)
       for (std::size_t b = a + 2; b < m_chunks.size(); b += 2)
         if (m_chunks[a].node_begin < m_chunks[b].node_end && m_chunks[b].node_begin < m_chunks[a].node_end) m_direct = false;
