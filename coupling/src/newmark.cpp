@@ -128,6 +128,8 @@ void Newmark::allocate(const System& s) {
   m_h_mask_h = -1.0;
   for (GeneralizedVector* g : {&m_c, &m_y, &m_r_vec, &m_z, &m_p, &m_q, &m_guess, &m_last_half}) g->resize(n, r);
   m_last_dt = 0.0;
+  m_guess_trial = 0;
+  m_extrapolate = false;
   m_constraints.reserve(static_cast<std::size_t>(n));
   m_has_damping = false;
   for (const auto& f : s.m_forces) m_has_damping = m_has_damping || f->has_damping();
@@ -221,13 +223,19 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   m_y.rigid.bottomRows<3>() = m_body_w_n;
   // Initial guess from the last step: v^{n+1/2} ~ v^n + (dt / dt_last) (v^n - v^{n-1/2}), since
   // v^n - v^{n-1/2} ~ dt_last/2 a: exact under constant acceleration (free fall, a steady push) and
-  // O(dt^2) off in smooth motion, where v^n alone is O(dt) off. The last answer's own error (up to
-  // the CG tolerance) is doubled by the extrapolation, so it is used only where the change it
-  // predicts is well above the tolerance (tenfold, on some unknown): with a loose tolerance at a
-  // long step it cost iterations on the cloth (335 -> 663 at 20x20, 1/60 s, tol 0.1), with a tight
-  // one it saves them (21% at 40x40, 1/240 s, tol 1e-3). On the unknowns only; the result is the
-  // same to the CG tolerance whichever guess is used.
+  // O(dt^2) off in smooth motion, where v^n alone is O(dt) off. But the difference also holds the
+  // last step's error in the stiff modes, which ring from step to step when the step is long against
+  // them (implicit elasticity at 1/60 s: the trapezoidal half step turns them over each step), and
+  // the extrapolation doubles that. Neither guess wins everywhere (on the benchmark curtain, CG
+  // iterations per step-1 solve: 40x40 at 1/240 s, tol 1e-3: 6.5 from v^n, 3.9 extrapolated; 150x150
+  // multigrid at 1/60 s, tol 1e-2: 20.8 extrapolated), so Step1Guess::adaptive tries both every
+  // kGuessTrialSteps steps (one more product and preconditioner application) and keeps the one with
+  // the smaller r . z (solve(), Alternative::if_smaller) until the next trial (150x150: 12.4). Only
+  // where the change it predicts is well above the tolerance (tenfold, on some unknown), else v^n:
+  // the last answer's own error (up to the tolerance) is doubled too. On the unknowns only.
   const bool history = m_last_dt > 0.0;
+  const Step1Guess guess_rule = s.m_step_settings.step1_guess;
+  bool extrapolate = false, trial = false;
   if (history) {
     const double ratio = dt / m_last_dt;
     double change = 0.0;
@@ -241,9 +249,20 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
       m_guess.rigid.col(b) = d;
       change = std::max(change, d.cwiseAbs().maxCoeff());
     }
-    if (change > 10.0 * s.m_step_settings.cg_tolerance) {
-      m_y.particles += m_guess.particles;
-      m_y.rigid += m_guess.rigid;
+    if (guess_rule == Step1Guess::extrapolated) {
+      extrapolate = true;
+    } else if (guess_rule == Step1Guess::adaptive && change > 10.0 * s.m_step_settings.cg_tolerance) {
+      trial = m_guess_trial == 0;
+      m_guess_trial = trial ? kGuessTrialSteps - 1 : m_guess_trial - 1;
+      extrapolate = !trial && m_extrapolate;
+    }
+    if (extrapolate || trial) {
+      m_guess.particles += m_y.particles;  // the extrapolated guess, in full
+      m_guess.rigid += m_y.rigid;
+    }
+    if (extrapolate) {
+      m_y.particles = m_guess.particles;
+      m_y.rigid = m_guess.rigid;
     }
   }
   // Before the first step, a second initial guess instead: M^-1 c = v^n + dt/2 M^-1 F on the
@@ -268,7 +287,9 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   t = Clock::now();
   const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity || m_joint_group_count > 0;
   m_refresh_preconditioner = true;
-  const SolveResult result = solve(s, h, h, m_implicit_elasticity ? h : 0.0, linear_solve, history ? nullptr : &m_guess);
+  const SolveResult result = history ? solve(s, h, h, m_implicit_elasticity ? h : 0.0, linear_solve, trial ? &m_guess : nullptr, Alternative::if_smaller)
+                                     : solve(s, h, h, m_implicit_elasticity ? h : 0.0, linear_solve, &m_guess);
+  if (trial) m_extrapolate = result.took_alternative;
   stats.ms.cg += ms_since(t);
   stats.linear_solve = linear_solve;
   stats.cg_iterations_step1 += result.iterations;
@@ -796,7 +817,7 @@ void Newmark::prepare_joints(const System& s) {
 // (symmetric in the plain inner product; the paper's mass inner product form is the same iteration).
 // Constrained directions (kinematic rows and bodies, collision normals) keep their initial values.
 Newmark::SolveResult Newmark::solve(System& s, double h, double beta, double beta_el, bool linear_solve,
-                                    GeneralizedVector* alternative) {
+                                    GeneralizedVector* alternative, Alternative rule) {
   SolveResult result;
   const StepSettings& settings = s.m_step_settings;
   // Step 4 keeps step 1's preconditioner (blocks at x^n instead of x^{n+1/2}, half a step apart)
@@ -839,12 +860,15 @@ Newmark::SolveResult Newmark::solve(System& s, double h, double beta, double bet
     project(m_p);
     precondition(m_p, m_q);
     const double alternative_residual = max_abs(m_q);
-    if (alternative_residual <= 1e-3 * settings.cg_tolerance && alternative_residual < result.residual) {
+    const bool take = rule == Alternative::if_smaller ? dot(m_p, m_q) < dot(m_r_vec, m_z)
+                                                      : alternative_residual <= 1e-3 * settings.cg_tolerance && alternative_residual < result.residual;
+    if (take) {
       m_y.particles = alternative->particles;
       m_y.rigid = alternative->rigid;
       std::swap(m_r_vec, m_p);
       std::swap(m_z, m_q);
       result.residual = alternative_residual;
+      result.took_alternative = true;
     }
   }
   m_p.particles = m_z.particles;

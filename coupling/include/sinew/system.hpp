@@ -47,6 +47,19 @@ struct SystemSettings {
   bool absorb_bound_mass_into_rigid_bodies = true;
 };
 
+/// Step 1's initial guess for v~^{n+1/2} (the answer is the same to the CG tolerance whichever is used;
+/// only the iteration count changes).
+enum class Step1Guess {
+  /// Once every 8 steps, where the extrapolation predicts a change well above the tolerance, both
+  /// guesses below are tried and the one with the smaller preconditioned residual (r . P^-1 r) is
+  /// kept for the following steps; v^n otherwise.
+  adaptive,
+  previous_velocity,  ///< v^n
+  /// v^n + (dt / dt_last) (v^n - v^{n-1/2}): exact under constant acceleration, but doubles the last
+  /// step's error in stiff modes that ring from step to step (implicit elasticity at long steps).
+  extrapolated,
+};
+
 struct StepSettings {
   /// CG stops when every component of the preconditioned residual z = P^-1 (c - S v) is at most
   /// this [m/s] (absolute, max-norm, on particle velocities and rigid twists alike). It bounds the
@@ -75,6 +88,7 @@ struct StepSettings {
   /// Threads for the step's loops (0: every hardware thread). Results are bit-identical for any
   /// count (sinew/parallel.hpp); small scenes stay on one thread whatever this says.
   int threads = 1;
+  Step1Guess step1_guess = Step1Guess::adaptive;
   BindingSpringStep4 binding_springs_in_step4 = BindingSpringStep4::implicit_half_step;
   double cfl = 0.9;                 ///< fraction of the elastic stable step used by advance()
   int max_substeps = 100000;
