@@ -438,7 +438,7 @@ TEST(EdgeSprings, ChunkedProductsMatchPerEdgeSumsOnAnyThreadCount) {
       if (j + 1 < nx) edges.push_back({a, a + nx});
       if (i + 1 < nx && j + 1 < nx) edges.push_back((i + j) % 2 ? EdgeSprings::Edge{a, a + nx + 1} : EdgeSprings::Edge{a + 1, a + nx});
     }
-  ASSERT_GE(static_cast<Index>(edges.size()), parallel::kMinParallelItems);
+  ASSERT_GE(static_cast<Index>(edges.size()), parallel::kMinChunkedElements);
   EdgeSprings springs(edges, rest, {.stiffness = 200.0, .damping = 0.05});
   std::mt19937 rng(13);
   Vectors3 x = 1.05 * rest + random_like(rest, 0.01, rng);
@@ -481,7 +481,7 @@ TEST(ChunkedScatter, DirectAndBufferedChunksGiveEachNodeItsTermsOnAnyThreadCount
     }
   std::vector<std::array<Index, 2>> shuffled = grid;
   std::shuffle(shuffled.begin(), shuffled.end(), std::mt19937(31));
-  ASSERT_GE(static_cast<Index>(grid.size()), parallel::kMinParallelItems);
+  ASSERT_GE(static_cast<Index>(grid.size()), parallel::kMinChunkedElements);
   for (const auto* elements : {&grid, &shuffled}) {
     const ChunkedScatter chunks(*elements, nodes);
     ASSERT_GE(chunks.chunks().size(), 4u);  // two or more chunks per half

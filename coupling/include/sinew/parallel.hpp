@@ -19,8 +19,14 @@ int thread_count();
 
 namespace parallel {
 
-/// Loops shorter than this run on the calling thread: a parallel region costs microseconds.
-inline constexpr Index kMinParallelItems = 2048;
+/// Loops shorter than this run on the calling thread: a parallel region costs microseconds. On the
+/// benchmark curtain, two threads paid for a 40x40 cloth's 1600-node loops (its tick 3-5% faster
+/// than with 2048) and lost on a 20x20 cloth's 1100-edge loops (7% slower with 1024).
+inline constexpr Index kMinParallelItems = 1536;
+/// Element loops (ChunkedScatter) split into chunks from this many elements: below it, the split's
+/// extra buffers or passes cost more than a second thread saves (a 20x20 cloth's 1100 edges: 11%
+/// slower in two chunks). The chunks fix the order of the sums, so this is part of the results.
+inline constexpr Index kMinChunkedElements = 2048;
 /// Reductions add terms in blocks of this many, then the block sums in block order.
 inline constexpr Index kReductionBlock = 1024;
 
@@ -85,12 +91,12 @@ class ChunkedScatter {
   };
   ChunkedScatter() = default;
   /// elements: node indices per element; nodes: one past the largest node index. One chunk below
-  /// kMinParallelItems elements, else up to 8 of at least kMinParallelItems / 2 (so 2 or 4 threads
-  /// share them evenly).
+  /// kMinChunkedElements elements, else up to 8 of at least kMinChunkedElements / 2 (so 2 or 4
+  /// threads share them evenly).
   template <std::size_t K>
   ChunkedScatter(const std::vector<std::array<Index, K>>& elements, Index nodes) : m_nodes(nodes) {
     const auto count = static_cast<Index>(elements.size());
-    const Index chunks = count < parallel::kMinParallelItems ? 1 : std::min<Index>(8, std::max<Index>(2, count / (parallel::kMinParallelItems / 2)));
+    const Index chunks = count < parallel::kMinChunkedElements ? 1 : std::min<Index>(8, std::max<Index>(2, count / (parallel::kMinChunkedElements / 2)));
     for (Index c = 0; c < chunks; ++c) {
       Chunk chunk{count * c / chunks, count * (c + 1) / chunks, nodes, 0};
       for (Index e = chunk.begin; e < chunk.end; ++e)
