@@ -14,6 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (after the backend is chosen)
 STYLE = {
     "sinew": ("tab:red", "o"),
     "sinew-implicit": ("tab:orange", "s"),
+    "sinew-implicit-bending": ("tab:brown", "P"),
     "sinew-multigrid": ("tab:purple", "D"),
     "bullet-classic": ("tab:blue", "^"),
     "bullet-deformable": ("tab:green", "v"),

@@ -84,7 +84,9 @@ class SinewCurtain final : public SinewCurtainRun {
   }
 
   std::string system() const override {
-    return m_settings.multigrid ? "sinew-multigrid" : m_settings.implicit_elasticity ? "sinew-implicit" : "sinew";
+    if (m_settings.multigrid) return "sinew-multigrid";
+    if (m_settings.implicit_elasticity) return m_spec.bending_implicit ? "sinew-implicit-bending" : "sinew-implicit";
+    return "sinew";
   }
 
   void advance(double frame_dt, int steps) override {

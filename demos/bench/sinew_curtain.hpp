@@ -30,7 +30,8 @@ struct SinewSettings {
   double binding_spring_damping_ratio = 1.0;  ///< of critical, for binding springs
 };
 
-/// "sinew", "sinew-implicit" with implicit elasticity, or "sinew-multigrid" with the multigrid as well.
+/// "sinew", "sinew-implicit" with implicit elasticity, "sinew-implicit-bending" with bending implicit
+/// too (CurtainSpec::bending_implicit), or "sinew-multigrid" with the multigrid as well.
 class SinewCurtainRun : public CurtainRun {
  public:
   /// Per-phase timings, substeps and CG iterations summed over every tick since construction.
