@@ -760,6 +760,28 @@ TEST(Forces, PairAndDiagonalBlocksAssembleTheImplicitProducts) {
   }
 }
 
+// The blocks one at a time (for the multigrid's parallel gather) are the visit's, in its order.
+TEST(Forces, SinglePairBlocksAreTheVisitedOnesInOrder) {
+  std::mt19937 rng(23);
+  const Cloth cloth;
+  EdgeSprings springs = make_springs(cloth);
+  DihedralBending bending(DihedralBending::hinges_from_triangles(cloth.triangles), cloth.rest,
+                          {.stiffness = 0.02, .damping = 0.003, .implicit = true});
+  bending.set_implicit(true);
+  struct Recorder final : PairBlockSink {
+    std::vector<Mat3> blocks;
+    void add(Index, Index, const Mat3& block) override { blocks.push_back(block); }
+  };
+  for (Force* force : {static_cast<Force*>(&springs), static_cast<Force*>(&bending)}) {
+    force->update_position_state(cloth.deformed(rng));
+    Recorder visited;
+    ASSERT_TRUE(force->visit_implicit_pair_blocks(0.25, visited));
+    ASSERT_EQ(force->implicit_pair_block_count(), static_cast<Index>(visited.blocks.size())) << force->name();
+    for (std::size_t k = 0; k < visited.blocks.size(); ++k)
+      EXPECT_TRUE(force->implicit_pair_block(static_cast<Index>(k), 0.25) == visited.blocks[k]) << force->name() << " block " << k;
+  }
+}
+
 TEST(DihedralBending, HingesFromTrianglesFindsEachInteriorEdgeOnce) {
   const Cloth cloth;
   const std::vector<Hinge> hinges = DihedralBending::hinges_from_triangles(cloth.triangles);

@@ -3,6 +3,7 @@
 // (fine cloth, large steps), deterministic on any thread count, allocation-free after set-up.
 #include "cloth.hpp"
 #include "multigrid.hpp"
+#include "sinew/parallel.hpp"
 #include "sinew/system.hpp"
 
 #include <gtest/gtest.h>
@@ -211,6 +212,69 @@ TEST(Multigrid, UpdatesFollowThePlanAndAChangedForceSetIsNamed) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("pair blocks"), std::string::npos) << e.what();
   }
+}
+
+/// The grid operator's pair blocks as a force passes them: through the visit, and one at a time.
+class GridBlocks final : public Force {
+ public:
+  explicit GridBlocks(const GridOperator& op, bool single) : m_op(op), m_single(single) {}
+  std::string_view name() const override { return "grid blocks"; }
+  void validate(Index) const override {}
+  void update_position_state(const Vectors3&) override {}
+  double potential_energy(const Vectors3&) const override { return 0.0; }
+  void add_elastic_forces(const Vectors3&, Vectors3&) const override {}
+  void add_elastic_differentials(const Vectors3&, Vectors3&) const override {}
+  bool visit_implicit_pair_blocks(double b, PairBlockSink& sink) const override {
+    for (std::size_t e = 0; e < m_op.pairs.size(); ++e) sink.add(m_op.pairs[e][0], m_op.pairs[e][1], b * m_op.blocks[e]);
+    return true;
+  }
+  Index implicit_pair_block_count() const override { return m_single ? static_cast<Index>(m_op.pairs.size()) : 0; }
+  Mat3 implicit_pair_block(Index k, double b) const override { return b * m_op.blocks[static_cast<std::size_t>(k)]; }
+
+ private:
+  const GridOperator& m_op;
+  bool m_single;
+};
+
+// Level 1 gathering the forces' blocks in parallel sums the same terms in the same order as the
+// serial visit: the same preconditioner bit for bit, on one thread and on two; and it declines
+// before the hierarchy exists and when the sources do not cover the recorded blocks.
+TEST(Multigrid, GatheredLevelOneIsTheVisitedOneBitForBit) {
+  const GridOperator op(48, 1e3, 9);  // 2304 nodes: level 1 has enough pair blocks for two threads
+  const GridBlocks first(op, true), second(op, true), opaque(op, false);
+  const double b = 0.25;  // the two sources add up to the operator's blocks: b and 3 b
+  auto update = [&](AggregationMultigrid& mg, bool gather) {
+    mg.begin(op.unknown, op.diag, -1.0);
+    const std::vector<AggregationMultigrid::PairBlockSource> sources{{&first, b}, {&second, 3.0 * b}};
+    if (!gather || !mg.gather(sources)) {
+      EXPECT_FALSE(gather && mg.built()) << "gather declined a built hierarchy";
+      first.visit_implicit_pair_blocks(b, mg);
+      second.visit_implicit_pair_blocks(3.0 * b, mg);
+    }
+    mg.end();
+  };
+  std::mt19937 rng(10);
+  const Vectors3 r = op.random_vector(rng);
+  const Blocks inverse = op.inverse_blocks();
+  auto preconditioned = [&](bool gather, int threads) {
+    set_thread_count(threads);
+    AggregationMultigrid mg;
+    update(mg, gather);  // the first update records the pairs (gather declines)
+    update(mg, gather);
+    Vectors3 z(3, op.count);
+    mg.apply(r, z, inverse);
+    set_thread_count(1);
+    return z;
+  };
+  const Vectors3 visited = preconditioned(false, 1);
+  EXPECT_TRUE(preconditioned(true, 1) == visited);
+  EXPECT_TRUE(preconditioned(true, 2) == visited);
+
+  AggregationMultigrid mg;
+  update(mg, false);
+  mg.begin(op.unknown, op.diag, -1.0);
+  EXPECT_FALSE(mg.gather({{&first, b}})) << "half the recorded blocks";
+  EXPECT_FALSE(mg.gather({{&first, b}, {&opaque, b}})) << "a source without single blocks";
 }
 
 // ---- in the step ---------------------------------------------------------------------------------

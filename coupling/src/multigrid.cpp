@@ -106,7 +106,51 @@ void prolong_add(const std::vector<Index>& agg, const Vectors3& coarse, Vectors3
   });
 }
 
+/// Every target block of `gather` (diagonal blocks into diag, then pair blocks into pairs) adds its
+/// terms in order, term k being scale * block_of(k) as plan[k] places it (diagonal: B + B^T;
+/// odd code: B^T; even: B): what a serial pass over k adds, bit for bit, in parallel over targets.
+template <typename BlockOf>
+void gather_blocks(const AggregationMultigrid::Gather& gather, const std::vector<Index>& plan, double scale,
+                   AggregationMultigrid::Blocks& diag, AggregationMultigrid::Blocks& pairs, BlockOf&& block_of) {
+  auto add_terms = [&](Index t, Eigen::Map<Mat3> target) {
+    Mat3 sum = target;
+    for (Index e = gather.offset[static_cast<std::size_t>(t)]; e < gather.offset[static_cast<std::size_t>(t) + 1]; ++e) {
+      const Index k = gather.term[static_cast<std::size_t>(e)];
+      const Index code = plan[static_cast<std::size_t>(k)];
+      const Mat3 block = block_of(k);
+      if (code < 0) {
+        sum += scale * (block + block.transpose());
+      } else if (code & 1) {
+        sum += scale * block.transpose();
+      } else {
+        sum += scale * block;
+      }
+    }
+    target = sum;
+  };
+  const Index n = gather.diag_targets, pair_count = static_cast<Index>(gather.offset.size()) - 1 - n;
+  parallel::for_ranges(n, [&](Index t0, Index t1) {
+    for (Index t = t0; t < t1; ++t) add_terms(t, block_at(diag, t));
+  });
+  parallel::for_ranges(pair_count, [&](Index p0, Index p1) {
+    for (Index p = p0; p < p1; ++p) add_terms(n + p, block_at(pairs, p));
+  });
+}
+
 }  // namespace
+
+void AggregationMultigrid::Gather::build(const std::vector<Index>& plan, Index diag_count, Index pair_count) {
+  diag_targets = diag_count;
+  auto target = [&](Index code) { return code < 0 ? -2 - code : diag_count + (code >> 1); };
+  offset.assign(static_cast<std::size_t>(diag_count + pair_count) + 1, 0);
+  for (Index code : plan)
+    if (code != kSkip) ++offset[static_cast<std::size_t>(target(code)) + 1];
+  for (std::size_t t = 1; t < offset.size(); ++t) offset[t] += offset[t - 1];
+  term.resize(static_cast<std::size_t>(offset.back()));
+  std::vector<Index> fill(offset.begin(), offset.end() - 1);
+  for (std::size_t k = 0; k < plan.size(); ++k)
+    if (plan[k] != kSkip) term[static_cast<std::size_t>(fill[static_cast<std::size_t>(target(plan[k]))]++)] = static_cast<Index>(k);
+}
 
 void AggregationMultigrid::Members::build(const std::vector<Index>& agg, Index aggregates) {
   offset.assign(static_cast<std::size_t>(aggregates) + 1, 0);
@@ -126,6 +170,7 @@ void AggregationMultigrid::reset() {
   m_levels.clear();
   m_agg0.clear();
   m_plan0.clear();
+  m_gather0 = {};
   m_recorded_pairs.clear();
   m_recorded_blocks.clear();
 }
@@ -246,6 +291,26 @@ void AggregationMultigrid::add(Index i, Index j, const Mat3& block) {
   add_to_level1(m_plan0[m_cursor++], block);
 }
 
+bool AggregationMultigrid::gather(const std::vector<PairBlockSource>& sources) {
+  m_source_base.resize(sources.size() + 1);  // before the hierarchy exists too: no allocation later
+  if (!m_built || m_recording || m_cursor != 0) return false;
+  m_source_base[0] = 0;
+  for (std::size_t f = 0; f < sources.size(); ++f) {
+    const Index count = sources[f].force->implicit_pair_block_count();
+    if (count == 0) return false;
+    m_source_base[f + 1] = m_source_base[f] + count;
+  }
+  if (m_source_base.back() != static_cast<Index>(m_plan0.size())) return false;
+  Level& l1 = m_levels.front();
+  gather_blocks(m_gather0, m_plan0, m_scale, l1.diag, l1.pair_block, [&](Index k) {
+    std::size_t f = 0;
+    while (k >= m_source_base[f + 1]) ++f;
+    return sources[f].force->implicit_pair_block(k - m_source_base[f], sources[f].b);
+  });
+  m_cursor = m_plan0.size();
+  return true;
+}
+
 void AggregationMultigrid::build(const VectorXd& unknown) {
   // Level 0: the unknown particles, their pairs (merged, with the summed block norms as strengths).
   const Index n = unknown.size();
@@ -282,6 +347,7 @@ void AggregationMultigrid::build(const VectorXd& unknown) {
     Level& l1 = m_levels.back();
     l1.n = n1;
     coarse_pairs(m_recorded_pairs, m_agg0, l1.pairs, m_plan0);
+    m_gather0.build(m_plan0, l1.n, static_cast<Index>(l1.pairs.size()));
   }
   auto allocate = [](Level& level) {
     level.diag.setZero(9, level.n);
@@ -316,6 +382,7 @@ void AggregationMultigrid::build(const VectorXd& unknown) {
     Level next;
     next.n = coarse_n;
     coarse_pairs(fine.pairs, agg, next.pairs, fine.pair_plan);
+    fine.gather.build(fine.pair_plan, coarse_n, static_cast<Index>(next.pairs.size()));
     fine.agg = std::move(agg);
     fine.members.build(fine.agg, coarse_n);
     m_levels.push_back(std::move(next));
@@ -338,24 +405,17 @@ void AggregationMultigrid::assemble_next(int l) {
   Level& coarse = m_levels[static_cast<std::size_t>(l) + 1];
   restrict_to(fine.members, fine.diag, coarse.diag);
   coarse.pair_block.setZero();
-  for (std::size_t k = 0; k < fine.pairs.size(); ++k) {
-    const Index code = fine.pair_plan[k];
-    const auto block = block_at(fine.pair_block, static_cast<Index>(k));
-    if (code < 0) {
-      block_at(coarse.diag, -2 - code) += block + block.transpose();
-    } else if (code & 1) {
-      block_at(coarse.pair_block, code >> 1) += block.transpose();
-    } else {
-      block_at(coarse.pair_block, code >> 1) += block;
-    }
-  }
+  gather_blocks(fine.gather, fine.pair_plan, 1.0, coarse.diag, coarse.pair_block,
+                [&](Index k) -> Mat3 { return block_at(fine.pair_block, k); });
 }
 
 void AggregationMultigrid::invert_diagonals(Level& level) const {
-  for (Index i = 0; i < level.n; ++i) {
-    const Mat3 d = block_at(level.diag, i);
-    block_at(level.inverse, i) = d.inverse();
-  }
+  parallel::for_ranges(level.n, [&](Index i0, Index i1) {
+    for (Index i = i0; i < i1; ++i) {
+      const Mat3 d = block_at(level.diag, i);
+      block_at(level.inverse, i) = d.inverse();
+    }
+  });
 }
 
 void AggregationMultigrid::end() {

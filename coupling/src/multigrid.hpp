@@ -46,6 +46,13 @@ class AggregationMultigrid final : public PairBlockSink {
     std::vector<Index> offset, index;
     void build(const std::vector<Index>& agg, Index aggregates);
   };
+  /// For each block of a coarser level (diagonal blocks first, then pair blocks), the terms it
+  /// receives along a plan (the plan's indices, ascending: the order a serial pass adds them in).
+  struct Gather {
+    Index diag_targets = 0;
+    std::vector<Index> offset, term;
+    void build(const std::vector<Index>& plan, Index diag_targets, Index pair_targets);
+  };
 
   /// The coarsest level has at most this many nodes (a dense Cholesky of 3 n unknowns).
   static constexpr Index kCoarsestNodes = 48;
@@ -70,6 +77,18 @@ class AggregationMultigrid final : public PairBlockSink {
   void begin(const VectorXd& unknown, const Blocks& diag, double scale);
   /// The forces pass their pair blocks (D + b K+)_ij here, between begin() and end().
   void add(Index i, Index j, const Mat3& block) override;
+  /// A force whose pair blocks reach level 1, with the b its blocks are taken at.
+  struct PairBlockSource {
+    const Force* force = nullptr;
+    double b = 0.0;
+  };
+  /// Instead of the add() calls, between begin() and end(): every level-1 block gathers its terms
+  /// from the forces' implicit_pair_block, in parallel, in the order add() would have received them
+  /// (the same sums, bit for bit, on any thread count). sources: the forces that passed pair blocks
+  /// when the hierarchy was built, in that order. Returns false, having done nothing, before the
+  /// hierarchy exists or when the sources' block counts do not add up to its plan (a force that
+  /// does not offer its blocks one at a time); the forces then pass them through add().
+  bool gather(const std::vector<PairBlockSource>& sources);
   /// Finishes the update: on the first one chooses the aggregates, then sums every level's blocks,
   /// inverts the smoother's diagonal blocks and factors the coarsest level.
   void end();
@@ -93,6 +112,7 @@ class AggregationMultigrid final : public PairBlockSink {
     std::vector<Index> agg;
     Members members;  // agg's inverse
     std::vector<Index> pair_plan;
+    Gather gather;  // pair_plan's, for the next level
     Vectors3 x, b, t;  // solution, right-hand side, scratch (3 x n)
     double omega = 0.5;  // Jacobi damping of the smoother (estimate_omegas)
   };
@@ -126,6 +146,8 @@ class AggregationMultigrid final : public PairBlockSink {
   std::vector<Index> m_agg0;       // particle -> level-1 node, -1 off the unknowns
   Members m_members0;
   std::vector<Index> m_plan0;      // per pair the forces pass: plan code on level 1
+  Gather m_gather0;                // m_plan0's (built with the hierarchy)
+  std::vector<Index> m_source_base;  // gather(): first block of each source (scratch)
   std::size_t m_cursor = 0;
   std::vector<std::array<Index, 2>> m_recorded_pairs;  // first update only
   std::vector<Mat3> m_recorded_blocks;

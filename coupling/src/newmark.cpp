@@ -668,7 +668,13 @@ void Newmark::build_preconditioner(System& s, double h, double beta, double beta
       block[8] += m_dof_mass[i];
     }
     m_multigrid.begin(m_dynamic_mask, m_diag_blocks, -h);
-    for (const auto& f : s.m_forces) f->visit_implicit_pair_blocks(f->has_definite_differentials() ? beta_el : 0.0, m_multigrid);
+    // Level 1 gathers the forces' blocks in parallel once the hierarchy exists; the first update
+    // (which records the pairs) and forces that offer no single blocks go through the visits.
+    m_pair_sources.clear();
+    for (const auto& f : s.m_forces)
+      if (f->implicit_pair_block_count() > 0) m_pair_sources.push_back({f.get(), f->has_definite_differentials() ? beta_el : 0.0});
+    if (!m_multigrid.gather(m_pair_sources))
+      for (const auto& f : s.m_forces) f->visit_implicit_pair_blocks(f->has_definite_differentials() ? beta_el : 0.0, m_multigrid);
     m_multigrid.end();
   }
 }

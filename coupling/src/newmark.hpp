@@ -121,6 +121,7 @@ class Newmark {
   std::vector<Index> m_joint_root, m_joint_group_of;
   mutable VectorXd m_joint_scratch, m_joint_coefficients;
   AggregationMultigrid m_multigrid;  // StepSettings::multigrid
+  std::vector<AggregationMultigrid::PairBlockSource> m_pair_sources;  // build_preconditioner's scratch
   bool m_use_multigrid = false;      // this solve preconditions with the multigrid
   // Step 1 builds the preconditioner; step 4 keeps it when it was built for the same operator
   // parameters (see solve()). The key it was built for:

@@ -99,6 +99,16 @@ class Force {
     return false;
   }
 
+  /// The blocks visit_implicit_pair_blocks passes, one at a time: how many it passes, and the k-th
+  /// of them (the same value, in the same order), so that the multigrid can sum its coarse blocks
+  /// in parallel, each coarse block gathering its own terms. 0: not offered (the blocks then go
+  /// through the visit, serially).
+  virtual Index implicit_pair_block_count() const { return 0; }
+  virtual Mat3 implicit_pair_block(Index k, double b) const {
+    (void)k, (void)b;
+    return Mat3::Zero();
+  }
+
   /// True when add_damping_forces adds anything; a scene whose forces all return false and that
   /// has no binding springs runs no linear solve at all.
   virtual bool has_damping() const { return false; }

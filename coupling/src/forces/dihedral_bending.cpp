@@ -512,6 +512,18 @@ bool DihedralBending::visit_implicit_pair_blocks(double b, PairBlockSink& sink) 
   return true;
 }
 
+// Block k of the sequence above: hinge k / 6, node pair k % 6 in the order (0,1) (0,2) (0,3) (1,2)
+// (1,3) (2,3), computed as the visit computes it.
+Mat3 DihedralBending::implicit_pair_block(Index k, double b) const {
+  static constexpr Index kFirst[6] = {0, 0, 0, 1, 1, 2}, kSecond[6] = {1, 2, 3, 2, 3, 3};
+  const double c = m_settings.damping + 2.0 * b * m_settings.stiffness;
+  const auto h = static_cast<std::size_t>(k / 6);
+  const Index p = k % 6;
+  const Mat34& g = m_grad[h];
+  const double scale = -c * m_weight[h];
+  return scale * (g.col(kFirst[p]) * g.col(kSecond[p]).transpose());
+}
+
 // Conservative bound from the rest linearisation (exact per hinge, see the constructor; summed per
 // particle in element_bound_stable_dt). Away from rest the delta * Hessian(theta) term adds
 // stiffness of either sign, which this estimate ignores.

@@ -67,6 +67,8 @@ class DihedralBending final : public Force {
   void add_implicit_diagonal(double b, VectorXd& diag) const override;
   bool add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const override;
   bool visit_implicit_pair_blocks(double b, PairBlockSink& sink) const override;
+  Index implicit_pair_block_count() const override { return 6 * static_cast<Index>(m_hinges.size()); }
+  Mat3 implicit_pair_block(Index k, double b) const override;
   double stable_dt(const VectorXd& m_eff) const override;
 
   const std::vector<Hinge>& hinges() const { return m_hinges; }

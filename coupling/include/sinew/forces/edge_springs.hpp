@@ -37,6 +37,8 @@ class EdgeSprings final : public Force {
   void add_implicit_diagonal(double b, VectorXd& diag) const override;
   bool add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const override;
   bool visit_implicit_pair_blocks(double b, PairBlockSink& sink) const override;
+  Index implicit_pair_block_count() const override { return static_cast<Index>(m_edges.size()); }
+  Mat3 implicit_pair_block(Index k, double b) const override { return implicit_block(k, b); }
   double stable_dt(const VectorXd& m_eff) const override;
 
   const std::vector<Edge>& edges() const { return m_edges; }
