@@ -57,6 +57,29 @@ Index match_pairs(Index n, const std::vector<std::array<Index, 2>>& pairs, const
   return count;
 }
 
+/// Orders items by their key (a, b), both in [0, n), ascending and stably: a counting sort by b, then
+/// one by a (linear in the items and n, where a comparison sort of a fine cloth's pairs took most of
+/// the hierarchy's build).
+template <typename Item, typename KeyOf>
+void sort_by_pair(std::vector<Item>& items, Index n, KeyOf&& key_of) {
+  std::vector<Item> scratch(items.size());
+  std::vector<Index> start(static_cast<std::size_t>(n) + 1);
+  for (int pass = 1; pass >= 0; --pass) {
+    std::fill(start.begin(), start.end(), 0);
+    for (const Item& item : items) ++start[static_cast<std::size_t>(key_of(item)[pass]) + 1];
+    for (std::size_t i = 1; i < start.size(); ++i) start[i] += start[i - 1];
+    for (const Item& item : items) scratch[static_cast<std::size_t>(start[static_cast<std::size_t>(key_of(item)[pass])]++)] = item;
+    items.swap(scratch);
+  }
+}
+
+/// One past the largest index in agg (0 if empty).
+Index index_span(const std::vector<Index>& agg) {
+  Index n = 0;
+  for (Index a : agg) n = std::max(n, a + 1);
+  return n;
+}
+
 /// The pairs between distinct aggregates, merged and sorted, with the summed strengths.
 void merge_pairs(const std::vector<std::array<Index, 2>>& pairs, const std::vector<double>& strength,
                  const std::vector<Index>& agg, std::vector<std::array<Index, 2>>& out, std::vector<double>& out_strength) {
@@ -68,7 +91,7 @@ void merge_pairs(const std::vector<std::array<Index, 2>>& pairs, const std::vect
     if (a > b) std::swap(a, b);
     mapped.push_back({{a, b}, strength[k]});
   }
-  std::sort(mapped.begin(), mapped.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+  sort_by_pair(mapped, index_span(agg), [](const auto& m) -> const std::array<Index, 2>& { return m.first; });
   out.clear();
   out_strength.clear();
   for (const auto& m : mapped) {
@@ -195,16 +218,14 @@ Index AggregationMultigrid::aggregate(Index n, const std::vector<std::array<Inde
 
 void AggregationMultigrid::coarse_pairs(const std::vector<std::array<Index, 2>>& pairs, const std::vector<Index>& agg,
                                         std::vector<std::array<Index, 2>>& coarse, std::vector<Index>& plan) {
-  std::vector<std::array<Index, 2>> keys;
-  keys.reserve(pairs.size());
-  for (const auto& p : pairs) {
-    Index a = agg[static_cast<std::size_t>(p[0])], b = agg[static_cast<std::size_t>(p[1])];
-    if (a < 0 || b < 0 || a == b) continue;
-    keys.push_back({std::min(a, b), std::max(a, b)});
-  }
-  std::sort(keys.begin(), keys.end());
-  keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
-  coarse = keys;
+  // The crossing pairs, each with the fine pair it came from, sorted by their coarse key: equal keys
+  // are then adjacent, and each fine pair's plan code is its key's place among the distinct keys.
+  struct Crossing {
+    std::array<Index, 2> key;
+    Index fine;
+  };
+  std::vector<Crossing> crossing;
+  crossing.reserve(pairs.size());
   plan.resize(pairs.size());
   for (std::size_t k = 0; k < pairs.size(); ++k) {
     const Index a = agg[static_cast<std::size_t>(pairs[k][0])], b = agg[static_cast<std::size_t>(pairs[k][1])];
@@ -213,10 +234,16 @@ void AggregationMultigrid::coarse_pairs(const std::vector<std::array<Index, 2>>&
     } else if (a == b) {
       plan[k] = encode_diag(a);
     } else {
-      const std::array<Index, 2> key{std::min(a, b), std::max(a, b)};
-      const auto it = std::lower_bound(coarse.begin(), coarse.end(), key);
-      plan[k] = encode_pair(it - coarse.begin(), a > b);
+      crossing.push_back({{std::min(a, b), std::max(a, b)}, static_cast<Index>(k)});
     }
+  }
+  sort_by_pair(crossing, index_span(agg), [](const Crossing& c) -> const std::array<Index, 2>& { return c.key; });
+  coarse.clear();
+  for (const Crossing& c : crossing) {
+    if (coarse.empty() || coarse.back() != c.key) coarse.push_back(c.key);
+    const auto& fine = pairs[static_cast<std::size_t>(c.fine)];
+    const bool transposed = agg[static_cast<std::size_t>(fine[0])] > agg[static_cast<std::size_t>(fine[1])];
+    plan[static_cast<std::size_t>(c.fine)] = encode_pair(static_cast<Index>(coarse.size()) - 1, transposed);
   }
 }
 
