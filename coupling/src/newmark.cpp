@@ -221,18 +221,19 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   m_y.particles = m_v_n;
   m_y.rigid.topRows<3>() = m_body_v_n;
   m_y.rigid.bottomRows<3>() = m_body_w_n;
-  // Initial guess from the last step: v^{n+1/2} ~ v^n + (dt / dt_last) (v^n - v^{n-1/2}), since
-  // v^n - v^{n-1/2} ~ dt_last/2 a: exact under constant acceleration (free fall, a steady push) and
+  // Initial guess from the last step: v^{n+1/2} ~ v^n + (dt / dt_last) (v^n - v^{n-1/2}), since v^n
+  // - v^{n-1/2} ~ dt_last/2 a: exact under constant acceleration (free fall, a steady push) and
   // O(dt^2) off in smooth motion, where v^n alone is O(dt) off. But the difference also holds the
-  // last step's error in the stiff modes, which ring from step to step when the step is long against
-  // them (implicit elasticity at 1/60 s: the trapezoidal half step turns them over each step), and
-  // the extrapolation doubles that. Neither guess wins everywhere (on the benchmark curtain, CG
-  // iterations per step-1 solve: 40x40 at 1/240 s, tol 1e-3: 6.5 from v^n, 3.9 extrapolated; 150x150
-  // multigrid at 1/60 s, tol 1e-2: 20.8 extrapolated), so Step1Guess::adaptive tries both every
-  // kGuessTrialSteps steps (one more product and preconditioner application) and keeps the one with
-  // the smaller r . z (solve(), Alternative::if_smaller) until the next trial (150x150: 12.4). Only
-  // where the change it predicts is well above the tolerance (tenfold, on some unknown), else v^n:
-  // the last answer's own error (up to the tolerance) is doubled too. On the unknowns only.
+  // last step's error in the stiff modes, which ring from step to step when the step is long
+  // against them (implicit elasticity at 1/60 s: the trapezoidal half step turns them over each
+  // step), and the extrapolation doubles that. Neither guess wins everywhere (on the benchmark
+  // curtain, CG iterations per step-1 solve: 40x40 at 1/240 s, tol 1e-3: 6.5 from v^n, 3.9
+  // extrapolated; 150x150 multigrid at 1/60 s, tol 1e-2, over 2 s: 19.5 extrapolated), so
+  // Step1Guess::adaptive tries both every kGuessTrialSteps steps (one more product and
+  // preconditioner application) and keeps the one with the smaller r . z (solve(),
+  // Alternative::if_smaller) until the next trial (150x150: 12.4). Only where the change it
+  // predicts is well above the tolerance (tenfold, on some unknown), else v^n: the last answer's
+  // own error (up to the tolerance) is doubled too. On the unknowns only.
   const bool history = m_last_dt > 0.0;
   const Step1Guess guess_rule = s.m_step_settings.step1_guess;
   bool extrapolate = false, trial = false;
