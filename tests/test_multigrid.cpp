@@ -240,7 +240,8 @@ class GridBlocks final : public Force {
 // serial visit: the same preconditioner bit for bit, on one thread and on two; and it declines
 // before the hierarchy exists and when the sources do not cover the recorded blocks.
 TEST(Multigrid, GatheredLevelOneIsTheVisitedOneBitForBit) {
-  const GridOperator op(48, 1e3, 9);  // 2304 nodes: level 1 has enough pair blocks for two threads
+  // 10000 nodes: level 1's diagonal blocks, pair blocks and inverses are all many enough for two threads.
+  const GridOperator op(100, 1e3, 9);
   const GridBlocks first(op, true), second(op, true), opaque(op, false);
   const double b = 0.25;  // the two sources add up to the operator's blocks: b and 3 b
   auto update = [&](AggregationMultigrid& mg, bool gather) {

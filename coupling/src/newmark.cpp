@@ -233,7 +233,8 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   // preconditioner application) and keeps the one with the smaller r . z (solve(),
   // Alternative::if_smaller) until the next trial (150x150: 12.4). Only where the change it
   // predicts is well above the tolerance (tenfold, on some unknown), else v^n: the last answer's
-  // own error (up to the tolerance) is doubled too. On the unknowns only.
+  // own error (up to the tolerance) is doubled too (Step1Guess::extrapolated skips that test). On
+  // the unknowns only.
   const bool history = m_last_dt > 0.0;
   const Step1Guess guess_rule = s.m_step_settings.step1_guess;
   bool extrapolate = false, trial = false;
@@ -256,6 +257,8 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
       trial = m_guess_trial == 0;
       m_guess_trial = trial ? kGuessTrialSteps - 1 : m_guess_trial - 1;
       extrapolate = !trial && m_extrapolate;
+    } else {
+      m_guess_trial = 0;  // after a quiet spell (or another rule) the next qualifying step tries again
     }
     if (extrapolate || trial) {
       m_guess.particles += m_y.particles;  // the extrapolated guess, in full
@@ -857,18 +860,22 @@ Newmark::SolveResult Newmark::solve(System& s, double h, double beta, double bet
   if (m_n == 0 && m_r == 0) return result;
   result.residual = residual();
   if (alternative) {
-    // The alternative's preconditioned residual, in m_p (r) and m_q (z): taken only when it is
-    // exact to well below the tolerance (1e-3 of it: no iteration needed, and no answer merely at the
-    // tolerance's edge) and beats the first guess. Preferring it whenever its residual is smaller
-    // gained no iterations on the cloth.
+    // The alternative's preconditioned residual, in m_p (r) and m_q (z). Alternative::if_exact (the
+    // first step's M^-1 c): taken only when it is exact to well below the tolerance (1e-3 of it: no
+    // iteration needed, and no answer merely at the tolerance's edge) and beats the first guess;
+    // preferring it whenever its residual was smaller gained no iterations on the cloth there.
+    // Alternative::if_smaller (step 1's trials): the first guess is kept when it already meets the
+    // tolerance, the alternative taken when it does, else the one with the smaller r . z.
     apply(s, h, beta, beta_el, *alternative, m_q);
     m_p.particles = m_c.particles - m_q.particles;
     m_p.rigid = m_c.rigid - m_q.rigid;
     project(m_p);
     precondition(m_p, m_q);
     const double alternative_residual = max_abs(m_q);
-    const bool take = rule == Alternative::if_smaller ? dot(m_p, m_q) < dot(m_r_vec, m_z)
-                                                      : alternative_residual <= 1e-3 * settings.cg_tolerance && alternative_residual < result.residual;
+    const double tolerance = settings.cg_tolerance;
+    const bool take = rule == Alternative::if_smaller
+                          ? result.residual > tolerance && (alternative_residual <= tolerance || dot(m_p, m_q) < dot(m_r_vec, m_z))
+                          : alternative_residual <= 1e-3 * tolerance && alternative_residual < result.residual;
     if (take) {
       m_y.particles = alternative->particles;
       m_y.rigid = alternative->rigid;

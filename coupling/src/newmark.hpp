@@ -38,7 +38,8 @@ class Newmark {
     bool took_alternative = false;  ///< solve() started from its alternative guess
   };
   /// When solve() takes its alternative guess: only when that is exact to 1e-3 of the tolerance
-  /// (max-norm of the preconditioned residual, and better than the first), or whenever its r . z
+  /// (max-norm of the preconditioned residual, and better than the first), or, unless the first
+  /// guess already meets the tolerance, when the alternative does or its r . z
   /// (r^T P^-1 r, P the preconditioner: the energy norm CG reduces, an estimate of the initial error's
   /// A-norm) is the smaller. Chosen by the max-norm, the guess with the smaller peak sometimes needed
   /// more iterations (30x30 multigrid cloth at 1/60 s, tol 1e-2: 536 against 401 over 40 solves).
@@ -55,7 +56,7 @@ class Newmark {
   void build_rhs(const System& s, double h, const Vectors3& v_start, const Vectors3& body_v, const Vectors3& body_L);
   /// Solves (M - h D - h beta K_springs - h beta_el K+_elastic) y = c by preconditioned CG, y holding
   /// the initial guess (K, D negative semi-definite); with `alternative`, a second guess taken
-  /// instead when its residual is below 1e-3 of the tolerance (exact: no iteration needed).
+  /// instead by `rule` (see Alternative).
   SolveResult solve(System& s, double h, double beta, double beta_el, bool linear_solve,
                     GeneralizedVector* alternative = nullptr, Alternative rule = Alternative::if_exact);
   void apply(System& s, double h, double beta, double beta_el, const GeneralizedVector& u, GeneralizedVector& out);

@@ -20,7 +20,7 @@ int thread_count();
 namespace parallel {
 
 /// Loops shorter than this run on the calling thread: a parallel region costs microseconds. On the
-/// benchmark curtain, two threads paid for a 40x40 cloth's 1600-node loops (its tick 3-5% faster
+/// benchmark curtain, two threads paid for a 40x40 cloth's 1600-node loops (its tick 2-4% faster
 /// than with 2048) and lost on a 20x20 cloth's 1100-edge loops (7% slower with 1024).
 inline constexpr Index kMinParallelItems = 1536;
 /// Element loops (ChunkedScatter) split into chunks from this many elements: below it, the split's

@@ -50,13 +50,15 @@ struct SystemSettings {
 /// Step 1's initial guess for v~^{n+1/2} (the answer is the same to the CG tolerance whichever is used;
 /// only the iteration count changes).
 enum class Step1Guess {
-  /// Once every 8 steps, where the extrapolation predicts a change well above the tolerance, both
-  /// guesses below are tried and the one with the smaller preconditioned residual (r . P^-1 r) is
-  /// kept for the following steps; v^n otherwise.
+  /// Where the extrapolation predicts a change well above the tolerance (tenfold), both guesses
+  /// below are tried once every 8 such steps and the one with the smaller preconditioned residual
+  /// (r . P^-1 r; or the one that already meets the tolerance) kept for the following ones; v^n
+  /// otherwise.
   adaptive,
   previous_velocity,  ///< v^n
-  /// v^n + (dt / dt_last) (v^n - v^{n-1/2}): exact under constant acceleration, but doubles the last
-  /// step's error in stiff modes that ring from step to step (implicit elasticity at long steps).
+  /// v^n + (dt / dt_last) (v^n - v^{n-1/2}) on every step after the first: exact under constant
+  /// acceleration, but doubles the last step's error in stiff modes that ring from step to step
+  /// (implicit elasticity at long steps) and the last answer's own error.
   extrapolated,
 };
 
