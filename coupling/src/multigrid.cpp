@@ -129,9 +129,17 @@ void prolong_add(const std::vector<Index>& agg, const Vectors3& coarse, Vectors3
   });
 }
 
+/// A fine pair block B as plan code `code` places it on the coarser level: B + B^T in an aggregate's
+/// diagonal block, B^T in a pair block stored the other way round (odd code), else B.
+Mat3 placed(Index code, const Mat3& block) {
+  if (code < 0) return block + block.transpose();
+  if (code & 1) return block.transpose();
+  return block;
+}
+
 /// Every target block of `gather` (diagonal blocks into diag, then pair blocks into pairs) adds its
-/// terms in order, term k being scale * block_of(k) as plan[k] places it (diagonal: B + B^T;
-/// odd code: B^T; even: B): what a serial pass over k adds, bit for bit, in parallel over targets.
+/// terms in order, term k being scale * placed(plan[k], block_of(k)): what a serial pass over k
+/// adds, bit for bit, in parallel over targets.
 template <typename BlockOf>
 void gather_blocks(const AggregationMultigrid::Gather& gather, const std::vector<Index>& plan, double scale,
                    AggregationMultigrid::Blocks& diag, AggregationMultigrid::Blocks& pairs, BlockOf&& block_of) {
@@ -139,15 +147,7 @@ void gather_blocks(const AggregationMultigrid::Gather& gather, const std::vector
     Mat3 sum = target;
     for (Index e = gather.offset[static_cast<std::size_t>(t)]; e < gather.offset[static_cast<std::size_t>(t) + 1]; ++e) {
       const Index k = gather.term[static_cast<std::size_t>(e)];
-      const Index code = plan[static_cast<std::size_t>(k)];
-      const Mat3 block = block_of(k);
-      if (code < 0) {
-        sum += scale * (block + block.transpose());
-      } else if (code & 1) {
-        sum += scale * block.transpose();
-      } else {
-        sum += scale * block;
-      }
+      sum += scale * placed(plan[static_cast<std::size_t>(k)], block_of(k));
     }
     target = sum;
   };
@@ -299,13 +299,8 @@ void AggregationMultigrid::begin(const VectorXd& unknown, const Blocks& diag, do
 void AggregationMultigrid::add_to_level1(Index code, const Mat3& block) {
   if (code == kSkip) return;
   Level& l1 = m_levels.front();
-  if (code < 0) {
-    block_at(l1.diag, -2 - code) += m_scale * (block + block.transpose());
-  } else if (code & 1) {
-    block_at(l1.pair_block, code >> 1) += m_scale * block.transpose();
-  } else {
-    block_at(l1.pair_block, code >> 1) += m_scale * block;
-  }
+  auto target = code < 0 ? block_at(l1.diag, -2 - code) : block_at(l1.pair_block, code >> 1);
+  target += m_scale * placed(code, block);
 }
 
 void AggregationMultigrid::add(Index i, Index j, const Mat3& block) {
