@@ -47,6 +47,10 @@ double dot(const GeneralizedVector& a, const GeneralizedVector& b) {
   return total + a.rigid.cwiseProduct(b.rigid).sum();
 }
 
+/// The b a force's implicit terms are taken at: beta_el for elastic forces with a definite
+/// differential (implicit elasticity), 0 (damping alone) for the others.
+double implicit_b(const Force& f, double beta_el) { return f.has_definite_differentials() ? beta_el : 0.0; }
+
 /// Runs body(i0, i1) over fixed ranges of a flat particle block of n doubles (3 per particle); the
 /// ranges start at even offsets so that maps of them stay 16-byte aligned.
 template <typename Body>
@@ -221,8 +225,8 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   m_y.particles = m_v_n;
   m_y.rigid.topRows<3>() = m_body_v_n;
   m_y.rigid.bottomRows<3>() = m_body_w_n;
-  // Initial guess from the last step: v^{n+1/2} ~ v^n + (dt / dt_last) (v^n - v^{n-1/2}), since v^n
-  // - v^{n-1/2} ~ dt_last/2 a: exact under constant acceleration (free fall, a steady push) and
+  // Initial guess from the last step: v^{n+1/2} ~ v^n + (dt / dt_last) (v^n - v^{n-1/2}), as
+  // v^n - v^{n-1/2} ~ dt_last/2 a: exact under constant acceleration (free fall, a steady push) and
   // O(dt^2) off in smooth motion, where v^n alone is O(dt) off. But the difference also holds the
   // last step's error in the stiff modes, which ring from step to step when the step is long
   // against them (implicit elasticity at 1/60 s: the trapezoidal half step turns them over each
@@ -291,8 +295,9 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   t = Clock::now();
   const bool linear_solve = m_has_damping || s.m_springs.size() > 0 || m_implicit_elasticity || m_joint_group_count > 0;
   m_refresh_preconditioner = true;
-  const SolveResult result = history ? solve(s, h, h, m_implicit_elasticity ? h : 0.0, linear_solve, trial ? &m_guess : nullptr, Alternative::if_smaller)
-                                     : solve(s, h, h, m_implicit_elasticity ? h : 0.0, linear_solve, &m_guess);
+  GeneralizedVector* alternative = !history || trial ? &m_guess : nullptr;
+  const SolveResult result = solve(s, h, h, m_implicit_elasticity ? h : 0.0, linear_solve, alternative,
+                                   history ? Alternative::if_smaller : Alternative::if_exact);
   if (trial) m_extrapolate = result.took_alternative;
   stats.ms.cg += ms_since(t);
   stats.linear_solve = linear_solve;
@@ -560,7 +565,7 @@ void Newmark::apply(System& s, double h, double beta, double beta_el, const Gene
   for (Index k = 0; k < s.m_soft.size(); ++k)
     if (s.m_soft.coupling[k] == SoftCoupling::synchronized) m_tmp_v.col(s.m_soft.particle[k]) = m_tmp_v.col(s.m_soft.target[k]);
   m_apply_wrench.setZero();
-  for (const auto& f : s.m_forces) f->add_implicit_products(m_tmp_v, f->has_definite_differentials() ? beta_el : 0.0, m_apply_f);
+  for (const auto& f : s.m_forces) f->add_implicit_products(m_tmp_v, implicit_b(*f, beta_el), m_apply_f);
   s.m_springs.add_linear_forces(m_tmp_v, 1.0, beta, m_apply_f);
   gather_synchronized(s, m_apply_f);
   s.m_hard.distribute(m_apply_f, m_apply_wrench);
@@ -605,7 +610,7 @@ void Newmark::build_preconditioner(System& s, double h, double beta, double beta
   if (jacobi) {
     m_diag.setZero();
     for (const auto& f : s.m_forces) {
-      const double b = f->has_definite_differentials() ? beta_el : 0.0;
+      const double b = implicit_b(*f, beta_el);
       if (!f->add_implicit_diagonal_blocks(b, m_diag_blocks)) f->add_implicit_diagonal(b, m_diag);
     }
     m_diag_blocks *= h;
@@ -676,9 +681,9 @@ void Newmark::build_preconditioner(System& s, double h, double beta, double beta
     // (which records the pairs) and forces that offer no single blocks go through the visits.
     m_pair_sources.clear();
     for (const auto& f : s.m_forces)
-      if (f->implicit_pair_block_count() > 0) m_pair_sources.push_back({f.get(), f->has_definite_differentials() ? beta_el : 0.0});
+      if (f->implicit_pair_block_count() > 0) m_pair_sources.push_back({f.get(), implicit_b(*f, beta_el)});
     if (!m_multigrid.gather(m_pair_sources))
-      for (const auto& f : s.m_forces) f->visit_implicit_pair_blocks(f->has_definite_differentials() ? beta_el : 0.0, m_multigrid);
+      for (const auto& f : s.m_forces) f->visit_implicit_pair_blocks(implicit_b(*f, beta_el), m_multigrid);
     m_multigrid.end();
   }
 }
