@@ -190,12 +190,19 @@ void AggregationMultigrid::reset() {
   m_built = false;
   m_omega_ready = false;
   m_recording = false;
+  m_awaiting_level1 = false;
   m_levels.clear();
   m_agg0.clear();
   m_plan0.clear();
   m_gather0 = {};
   m_recorded_pairs.clear();
-  m_recorded_blocks.clear();
+  m_recorded_strength.clear();
+}
+
+void AggregationMultigrid::reserve(std::size_t pairs) {
+  if (!m_recording) return;
+  m_recorded_pairs.reserve(pairs);
+  m_recorded_strength.reserve(pairs);
 }
 
 Index AggregationMultigrid::level_size(int l) const {
@@ -286,8 +293,7 @@ void AggregationMultigrid::begin(const VectorXd& unknown, const Blocks& diag, do
     m_recording = true;
     m_unknown0 = unknown;
     m_recorded_pairs.clear();
-    m_recorded_blocks.clear();
-    m_diag0 = diag;
+    m_recorded_strength.clear();
     return;
   }
   if (unknown.size() != m_particles) fail("multigrid: ", unknown.size(), " particles, built for ", m_particles);
@@ -306,7 +312,7 @@ void AggregationMultigrid::add_to_level1(Index code, const Mat3& block) {
 void AggregationMultigrid::add(Index i, Index j, const Mat3& block) {
   if (m_recording) {
     m_recorded_pairs.push_back({i, j});
-    m_recorded_blocks.push_back(block);
+    m_recorded_strength.push_back(block.norm());
     return;
   }
   if (m_cursor >= m_plan0.size()) fail("multigrid: the forces passed more pair blocks than when the hierarchy was built");
@@ -333,7 +339,17 @@ bool AggregationMultigrid::gather(const std::vector<PairBlockSource>& sources) {
   return true;
 }
 
-void AggregationMultigrid::build(const VectorXd& unknown) {
+void AggregationMultigrid::allocate(Level& level) {
+  level.diag.setZero(9, level.n);
+  level.inverse.setZero(9, level.n);
+  level.pair_block.setZero(9, static_cast<Index>(level.pairs.size()));
+  level.x.setZero(3, level.n);
+  level.b.setZero(3, level.n);
+  level.t.setZero(3, level.n);
+  build_rows(level);
+}
+
+void AggregationMultigrid::plan_level1(const VectorXd& unknown) {
   // Level 0: the unknown particles, their pairs (merged, with the summed block norms as strengths).
   const Index n = unknown.size();
   std::vector<Index> local(static_cast<std::size_t>(n), -1);
@@ -347,7 +363,7 @@ void AggregationMultigrid::build(const VectorXd& unknown) {
     const Index a = local[static_cast<std::size_t>(m_recorded_pairs[k][0])], b = local[static_cast<std::size_t>(m_recorded_pairs[k][1])];
     if (a < 0 || b < 0 || a == b) continue;
     raw.push_back({std::min(a, b), std::max(a, b)});
-    raw_strength.push_back(m_recorded_blocks[k].norm());
+    raw_strength.push_back(m_recorded_strength[k]);
   }
   std::vector<Index> identity(static_cast<std::size_t>(n0));
   std::iota(identity.begin(), identity.end(), Index(0));
@@ -371,28 +387,17 @@ void AggregationMultigrid::build(const VectorXd& unknown) {
     coarse_pairs(m_recorded_pairs, m_agg0, l1.pairs, m_plan0);
     m_gather0.build(m_plan0, l1.n, static_cast<Index>(l1.pairs.size()));
   }
-  auto allocate = [](Level& level) {
-    level.diag.setZero(9, level.n);
-    level.inverse.setZero(9, level.n);
-    level.pair_block.setZero(9, static_cast<Index>(level.pairs.size()));
-    level.x.setZero(3, level.n);
-    level.b.setZero(3, level.n);
-    level.t.setZero(3, level.n);
-    build_rows(level);
-  };
   allocate(m_levels.back());
-  // Level 1's blocks from the recorded update, so that its strengths can choose the next aggregates.
   m_built = true;
   m_recording = false;
-  {
-    Level& l1 = m_levels.front();
-    for (Index i = 0; i < n; ++i) {
-      const Index a = m_agg0[static_cast<std::size_t>(i)];
-      if (a >= 0) l1.diag.col(a) += m_diag0.col(i);
-    }
-    for (std::size_t k = 0; k < m_plan0.size(); ++k) add_to_level1(m_plan0[k], m_recorded_blocks[k]);
-  }
-  // Coarser levels, each aggregated from the blocks of the one above.
+  m_awaiting_level1 = true;
+  m_recorded_pairs = {};
+  m_recorded_strength = {};
+}
+
+// Level 1's blocks are summed (the second pass): each coarser level is aggregated from the blocks of
+// the one above.
+void AggregationMultigrid::build_coarser_levels() {
   while (static_cast<int>(m_levels.size()) + 1 < kMaxLevels && m_levels.back().n > kCoarsestNodes) {
     const int l = static_cast<int>(m_levels.size()) - 1;
     Level& fine = m_levels[static_cast<std::size_t>(l)];
@@ -417,9 +422,7 @@ void AggregationMultigrid::build(const VectorXd& unknown) {
   const Index dense = m_dense_coarsest ? 3 * m_levels.back().n : 0;
   m_dense.setZero(dense, dense);
   m_dense_rhs.setZero(dense);
-  m_recorded_pairs = {};
-  m_recorded_blocks = {};
-  m_diag0.resize(9, 0);
+  m_awaiting_level1 = false;
 }
 
 void AggregationMultigrid::assemble_next(int l) {
@@ -442,11 +445,15 @@ void AggregationMultigrid::invert_diagonals(Level& level) const {
 
 void AggregationMultigrid::end() {
   if (m_recording) {
-    build(m_unknown0);  // chooses the aggregates and assembles every level from this update
+    plan_level1(m_unknown0);  // chooses level 1's aggregates; the blocks come again
     m_unknown0.resize(0);
+    return;
+  }
+  if (m_cursor != m_plan0.size())
+    fail("multigrid: the forces passed ", m_cursor, " pair blocks, ", m_plan0.size(), " when the hierarchy was built");
+  if (m_awaiting_level1) {
+    build_coarser_levels();  // aggregates and assembles every coarser level from level 1
   } else {
-    if (m_cursor != m_plan0.size())
-      fail("multigrid: the forces passed ", m_cursor, " pair blocks, ", m_plan0.size(), " when the hierarchy was built");
     for (int l = 0; l + 1 < static_cast<int>(m_levels.size()); ++l) assemble_next(l);
   }
   for (std::size_t l = 0; l + 1 < m_levels.size(); ++l) invert_diagonals(m_levels[l]);

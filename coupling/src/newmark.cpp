@@ -706,11 +706,23 @@ void Newmark::build_preconditioner(System& s, double h, double beta, double beta
     // Level 1 gathers the forces' blocks in parallel once the hierarchy exists; the first update
     // (which records the pairs) and forces that offer no single blocks go through the visits.
     m_pair_sources.clear();
+    std::size_t counted = 0;
     for (const auto& f : s.m_forces)
-      if (f->implicit_pair_block_count() > 0) m_pair_sources.push_back({f.get(), implicit_b(*f, beta_el)});
-    if (!m_multigrid.gather(m_pair_sources))
-      for (const auto& f : s.m_forces) f->visit_implicit_pair_blocks(implicit_b(*f, beta_el), m_multigrid);
-    m_multigrid.end();
+      if (f->implicit_pair_block_count() > 0) {
+        m_pair_sources.push_back({f.get(), implicit_b(*f, beta_el)});
+        counted += static_cast<std::size_t>(f->implicit_pair_block_count());
+      }
+    m_multigrid.reserve(counted);
+    auto pass = [&] {
+      if (!m_multigrid.gather(m_pair_sources))
+        for (const auto& f : s.m_forces) f->visit_implicit_pair_blocks(implicit_b(*f, beta_el), m_multigrid);
+      m_multigrid.end();
+    };
+    pass();
+    if (m_multigrid.needs_blocks_again()) {  // the first update: the pairs chose level 1, now its blocks
+      m_multigrid.begin(m_dynamic_mask, m_diag_blocks, -h);
+      pass();
+    }
   }
 }
 
