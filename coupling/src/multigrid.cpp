@@ -359,6 +359,7 @@ void AggregationMultigrid::plan_level1(const VectorXd& unknown) {
   std::vector<std::array<Index, 2>> raw;
   std::vector<double> raw_strength;
   raw.reserve(m_recorded_pairs.size());
+  raw_strength.reserve(m_recorded_pairs.size());
   for (std::size_t k = 0; k < m_recorded_pairs.size(); ++k) {
     const Index a = local[static_cast<std::size_t>(m_recorded_pairs[k][0])], b = local[static_cast<std::size_t>(m_recorded_pairs[k][1])];
     if (a < 0 || b < 0 || a == b) continue;
