@@ -196,13 +196,10 @@ TEST(Newmark, StepOneStartsFromTheLastStepsMotion) {
   EXPECT_LT(with_history, without);
   // With a tolerance above a tenth of the change the extrapolation predicts, the last answer's error
   // would matter as much as the prediction: step 1 then starts from v^n, as a fresh system does, and
-  // the two take the same step bit for bit (step 4 from step 1's answer: its predicted guess has a
-  // history of its own).
+  // the two take the same step bit for bit.
   carried->step_settings().cg_tolerance = 0.005;
-  carried->step_settings().step4_guess = Step4Guess::step_one_answer;
   auto fresh = make();
   fresh->step_settings().cg_tolerance = 0.005;
-  fresh->step_settings().step4_guess = Step4Guess::step_one_answer;
   fresh->particles().x = carried->particles().x;
   fresh->particles().v = carried->particles().v;
   const StepStats loose = carried->step(1.0 / 240);

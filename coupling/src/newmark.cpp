@@ -130,10 +130,9 @@ void Newmark::allocate(const System& s) {
   m_h_mask3.setZero(3 * n);
   for (Index i = 0; i < n; ++i) m_dof_mass3.segment<3>(3 * i).setConstant(m_dof_mass[i]);
   m_h_mask_h = -1.0;
-  for (GeneralizedVector* g : {&m_c, &m_y, &m_r_vec, &m_z, &m_p, &m_q, &m_guess, &m_last_half, &m_correction, &m_older_correction}) g->resize(n, r);
+  for (GeneralizedVector* g : {&m_c, &m_y, &m_r_vec, &m_z, &m_p, &m_q, &m_guess, &m_last_half}) g->resize(n, r);
   m_last_dt = 0.0;
   m_guess_trial = 0;
-  m_corrections = 0;
   m_extrapolate = false;
   m_constraints.reserve(static_cast<std::size_t>(n));
   m_has_damping = false;
@@ -399,20 +398,13 @@ void Newmark::backward_euler_velocity(System& s, double dt, StepStats& stats) {
   build_rhs(s, h, m_v_tilde_n, bodies.v, m_body_L_n);
   // Initial guess: step 1's half-step velocity v~^{n+1/2} on the unknowns (it solves nearly the same
   // system at nearly the same configuration, so CG starts O(dt) from the answer instead of O(dt)
-  // times the accelerations away), the prescribed values on constrained rows. Step4Guess::predicted
-  // adds alpha s^{n-1}, the correction the last step's solve made to its step-1 answer times its fit
-  // on the one before: where implicit elasticity turns stiff modes over each step the correction
-  // flips sign with them (alpha ~ -1; 150x150 multigrid at 1/60 s, tol 1e-2: 10.5 -> 7.6 step-4
-  // iterations), in smooth motion it persists (alpha ~ +1; 20x20 at 1/240 s, tol 1e-5: 6.6 -> 5.2).
-  // The result is the same to the CG tolerance whichever guess is used.
-  if (m_corrections == 2 && dt != m_last_dt) m_corrections = 0;  // the fit holds for one dt only
-  const double fit = s.m_step_settings.step4_guess == Step4Guess::predicted && m_corrections == 2 ? m_correction_fit : 0.0;
+  // times the accelerations away), the prescribed values on constrained rows. The result is the
+  // same to the CG tolerance whichever guess is used.
   for (Index i = 0; i < m_n; ++i)
-    m_y.particles.col(i) =
-        m_dynamic_mask[i] > 0.0 ? Vec3(m_v_half.col(i) + fit * m_correction.particles.col(i)) : Vec3(m_v_tilde_n.col(i));
+    m_y.particles.col(i) = m_dynamic_mask[i] > 0.0 ? Vec3(m_v_half.col(i)) : Vec3(m_v_tilde_n.col(i));
   for (Index b = 0; b < m_r; ++b) {
     if (m_dynamic_body[b]) {
-      m_y.rigid.col(b) = m_twist_half.col(b) + fit * m_correction.rigid.col(b);
+      m_y.rigid.col(b) = m_twist_half.col(b);
     } else {
       m_y.rigid.col(b).head<3>() = bodies.v.col(b);
       m_y.rigid.col(b).tail<3>() = bodies.w.col(b);
@@ -433,7 +425,6 @@ void Newmark::backward_euler_velocity(System& s, double dt, StepStats& stats) {
   stats.cg_iterations_step4 += result.iterations;
   stats.cg_residual = std::max(stats.cg_residual, result.residual);
   stats.cg_converged = stats.cg_converged && result.converged;
-  record_correction(dt);
   m_v_half = m_y.particles;
   m_last_half.particles = m_y.particles;
   m_last_half.rigid = m_y.rigid;
@@ -443,23 +434,6 @@ void Newmark::backward_euler_velocity(System& s, double dt, StepStats& stats) {
   p.x = m_x_np1;
   bodies.x = m_body_x_np1;
   for (Index b = 0; b < m_r; ++b) bodies.q[b] = m_body_q_np1[b];
-}
-
-// Step 4's correction s = (its answer, in m_y) - (step 1's) on the unknowns, kept with the one before
-// (swapped, not copied) and the fit alpha = s^n . s^{n-1} / |s^{n-1}|^2 for the next step's guess.
-void Newmark::record_correction(double dt) {
-  if (m_last_dt != dt) m_corrections = 0;
-  std::swap(m_correction, m_older_correction);
-  for (Index i = 0; i < m_n; ++i)
-    m_correction.particles.col(i) = m_dynamic_mask[i] > 0.0 ? Vec3(m_y.particles.col(i) - m_v_half.col(i)) : Vec3::Zero();
-  for (Index b = 0; b < m_r; ++b)
-    m_correction.rigid.col(b) = m_dynamic_body[b] ? Vec6(m_y.rigid.col(b) - m_twist_half.col(b)) : Vec6::Zero();
-  m_corrections = std::min(m_corrections + 1, 2);
-  m_correction_fit = 0.0;
-  if (m_corrections == 2) {
-    const double older = dot(m_older_correction, m_older_correction);
-    if (older > 0.0) m_correction_fit = std::clamp(dot(m_correction, m_older_correction) / older, -1.0, 1.0);
-  }
 }
 
 // Step 5: v^{n+1} = 2 v^{n+1/2} - v~^n. Rigid bodies extrapolate momentum, L^{n+1} = 2 L^{n+1/2} - L^n,

@@ -27,7 +27,6 @@ class Newmark {
   void advance_positions(System& s, double dt);                          // 2
   void process_collisions(System& s, double dt);                         // 3
   void backward_euler_velocity(System& s, double dt, StepStats& stats);  // 4
-  void record_correction(double dt);
   void extrapolate_velocity(System& s);                                  // 5
 
   /// Step1Guess::adaptive tries both step-1 guesses once in this many steps.
@@ -102,11 +101,6 @@ class Newmark {
   double m_h_mask_h = -1.0;         // the h m_h_mask3 holds
   GeneralizedVector m_c, m_y, m_r_vec, m_z, m_p, m_q;
   GeneralizedVector m_guess;  // step 1's second initial guess M^-1 c (first step), later the extrapolation's increment
-  // Step4Guess::predicted: the last two steps' corrections s = (step 4's answer) - (step 1's), on the
-  // unknowns, and the lag-one fit of the newer on the older.
-  GeneralizedVector m_correction, m_older_correction;
-  int m_corrections = 0;  // how many of the two hold a step's correction at the current dt
-  double m_correction_fit = 0.0;
   GeneralizedVector m_last_half;  // the last step's v^{n+1/2} (particles and twists), for step 1's guess
   double m_last_dt = 0.0;         // that step's dt; 0 before the first step
   int m_guess_trial = 0;          // Step1Guess::adaptive: steps until both guesses are tried again

@@ -62,17 +62,6 @@ enum class Step1Guess {
   extrapolated,
 };
 
-/// Step 4's initial guess for v^{n+1/2} (again only the iteration count depends on it).
-enum class Step4Guess {
-  /// Step 1's answer plus the predicted correction alpha s^{n-1}: s is what step 4 added to step 1's
-  /// answer, and alpha = s^{n-1} . s^{n-2} / |s^{n-2}|^2 (clamped to [-1, 1]) its lag-one fit over
-  /// the last two steps. Stiff modes that turn over from step to step (implicit elasticity at long
-  /// steps) give alpha near -1, smooth motion near +1; the first steps, and a step whose dt
-  /// differs from the last, use alpha = 0.
-  predicted,
-  step_one_answer,  ///< v~^{n+1/2}, step 1's answer
-};
-
 struct StepSettings {
   /// CG stops when every component of the preconditioned residual z = P^-1 (c - S v) is at most
   /// this [m/s] (absolute, max-norm, on particle velocities and rigid twists alike). It bounds the
@@ -102,7 +91,6 @@ struct StepSettings {
   /// count (sinew/parallel.hpp); small scenes stay on one thread whatever this says.
   int threads = 1;
   Step1Guess step1_guess = Step1Guess::adaptive;
-  Step4Guess step4_guess = Step4Guess::predicted;
   BindingSpringStep4 binding_springs_in_step4 = BindingSpringStep4::implicit_half_step;
   double cfl = 0.9;                 ///< fraction of the elastic stable step used by advance()
   int max_substeps = 100000;
