@@ -310,14 +310,66 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   s.m_particles.v = m_y.particles;
   s.m_bodies.v = m_y.rigid.topRows<3>();
   s.m_bodies.w = m_y.rigid.bottomRows<3>();
+  if (m_implicit_elasticity && linear_solve)
+    for (int k = 0; k < s.m_step_settings.newton_iterations; ++k) newton_iteration(s, dt, stats);
+}
+
+// One Newton iteration on step 1 (StepSettings::newton_iterations): the implicit forces relinearised
+// at x_mid = x^n + h v~^{n+1/2}, where the half step ends (F(x_mid + h (v - v_prev)) ~ F(x_mid) +
+// h K+(x_mid) (v - v_prev)), so (M - h D - h^2 K+) v = M v^n + h F(x_mid) - h^2 K+ v_prev: the same
+// operator as step 1's at the new state, and c gains apply(with K) - apply(without K) of v_prev.
+// Linear forces (binding springs) come out unchanged: their F(x_mid) - F(x^n) is that correction.
+// Positions go back to x^n exactly afterwards; step 2 advances from there.
+void Newmark::newton_iteration(System& s, double dt, StepStats& stats) {
+  const double h = 0.5 * dt;
+  auto t = Clock::now();
+  move_positions(s, h);
+  synchronize(s, true, false);
+  for (auto& f : s.m_forces) f->update_position_state(s.m_particles.x);
+  compute_forces(s, s.m_particles.x);
+  build_rhs(s, h, m_v_n, m_body_v_n, m_body_L_n);
+  apply(s, h, h, h, m_y, m_q);
+  apply(s, h, 0.0, 0.0, m_y, m_p);
+  m_c.particles += m_q.particles - m_p.particles;
+  m_c.rigid += m_q.rigid - m_p.rigid;
+  stats.ms.forces += ms_since(t);
+
+  t = Clock::now();
+  m_refresh_preconditioner = true;
+  const SolveResult result = solve(s, h, h, h, true);
+  stats.ms.cg += ms_since(t);
+  stats.cg_iterations_step1 += result.iterations;
+  stats.cg_residual = std::max(stats.cg_residual, result.residual);
+  stats.cg_converged = stats.cg_converged && result.converged;
+  ++stats.newton_iterations;
+
+  restore_positions(s);
+  m_v_half = m_y.particles;
+  m_twist_half = m_y.rigid;
+  s.m_particles.v = m_y.particles;
+  s.m_bodies.v = m_y.rigid.topRows<3>();
+  s.m_bodies.w = m_y.rigid.bottomRows<3>();
 }
 
 // Step 2: x~^{n+1} = x^n + dt v~^{n+1/2}; rigid frames x_c += dt v_c, q = q(dt w^{n+1/2}) q^n
 // (section 5, step 3). Velocities return to v^n, which step 3 turns into v~^n.
 void Newmark::advance_positions(System& s, double dt) {
   auto& p = s.m_particles;
+  auto& bodies = s.m_bodies;
+  move_positions(s, dt);
+  p.v = m_v_n;
+  bodies.v = m_body_v_n;
+  bodies.w = m_body_w_n;
+  s.m_hard.clamp_velocities(p.v, bodies.v, bodies.w);
+}
+
+// Positions x^n + tau v~^{n+1/2} on the particles that move (dynamic and kinematic rows), rigid frames
+// x_c + tau v_c and q(tau w) q^n with the bodies' current (step 1's) twists, bound rows from their
+// parents; velocities untouched.
+void Newmark::move_positions(System& s, double tau) {
+  auto& p = s.m_particles;
   for (Index i = 0; i < m_n; ++i)
-    if (is_dynamic(p.kind[i]) || p.kind[i] == ParticleKind::kinematic) p.x.col(i) = m_x_n.col(i) + dt * m_v_half.col(i);
+    if (is_dynamic(p.kind[i]) || p.kind[i] == ParticleKind::kinematic) p.x.col(i) = m_x_n.col(i) + tau * m_v_half.col(i);
   auto& bodies = s.m_bodies;
   const bool gyroscopic = s.m_step_settings.gyroscopic_correction;
   for (Index b = 0; b < m_r; ++b) {
@@ -326,17 +378,21 @@ void Newmark::advance_positions(System& s, double dt) {
       // w(t) = I(t)^-1 L drifts even without torque when I0 is not isotropic: dw/dt = I^-1 (L x w).
       // Rotating with the midpoint value keeps the orientation update second order.
       const Vec3 L = m_body_I[b] * w;
-      w += 0.5 * dt * (m_body_I[b].inverse() * L.cross(w));
+      w += 0.5 * tau * (m_body_I[b].inverse() * L.cross(w));
     }
-    bodies.x.col(b) = m_body_x_n.col(b) + dt * bodies.v.col(b);
-    bodies.q[b] = (rotation_from_vector(dt * w) * m_body_q_n[b]).normalized();
+    bodies.x.col(b) = m_body_x_n.col(b) + tau * bodies.v.col(b);
+    bodies.q[b] = (rotation_from_vector(tau * w) * m_body_q_n[b]).normalized();
   }
   s.m_hard.update_rigid_offsets(bodies);
   s.m_hard.clamp_positions(p.x, bodies.x);
-  p.v = m_v_n;
-  bodies.v = m_body_v_n;
-  bodies.w = m_body_w_n;
-  s.m_hard.clamp_velocities(p.v, bodies.v, bodies.w);
+}
+
+void Newmark::restore_positions(System& s) {
+  s.m_particles.x = m_x_n;
+  auto& bodies = s.m_bodies;
+  bodies.x = m_body_x_n;
+  for (Index b = 0; b < m_r; ++b) bodies.q[b] = m_body_q_n[b];
+  s.m_hard.update_rigid_offsets(bodies);
 }
 
 // Step 3: (x~^{n+1}, v^n) -> (x^{n+1}, v~^n). Deformables only (section 5, step 4): the hook sees

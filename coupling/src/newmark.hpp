@@ -27,6 +27,9 @@ class Newmark {
   void advance_positions(System& s, double dt);                          // 2
   void process_collisions(System& s, double dt);                         // 3
   void backward_euler_velocity(System& s, double dt, StepStats& stats);  // 4
+  void newton_iteration(System& s, double dt, StepStats& stats);        // after 1 (StepSettings)
+  void move_positions(System& s, double tau);  // x^n + tau v~^{n+1/2}, frames likewise (velocities kept)
+  void restore_positions(System& s);           // back to x^n, exactly
   void extrapolate_velocity(System& s);                                  // 5
 
   /// Step1Guess::adaptive tries both step-1 guesses once in this many steps.

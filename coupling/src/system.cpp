@@ -28,6 +28,7 @@ StepStats& StepStats::operator+=(const StepStats& o) {
   dt = o.dt;
   cg_iterations_step1 += o.cg_iterations_step1;
   cg_iterations_step4 += o.cg_iterations_step4;
+  newton_iterations += o.newton_iterations;
   cg_residual = std::max(cg_residual, o.cg_residual);
   cg_converged = cg_converged && o.cg_converged;
   linear_solve = linear_solve || o.linear_solve;
@@ -390,6 +391,8 @@ void System::clamp_bound_rows() {
 
 StepStats System::step(double dt) {
   if (!(std::isfinite(dt) && dt > 0.0)) fail("step: dt ", dt, " must be positive and finite");
+  if (m_step_settings.newton_iterations < 0)
+    fail("step settings: newton_iterations = ", m_step_settings.newton_iterations, ", must be >= 0");
   if (m_step_settings.multigrid && !m_step_settings.jacobi_preconditioner)
     fail("step settings: multigrid needs jacobi_preconditioner (block Jacobi is its finest level)");
   finalize();

@@ -75,6 +75,7 @@ class SinewCurtain final : public SinewCurtainRun {
     step.cg_tolerance = settings.cg_tolerance;
     step.cfl = settings.cfl;
     step.threads = settings.threads;
+    step.newton_iterations = settings.newton_iterations;
     system.finalize();
   }
 

@@ -23,6 +23,7 @@ struct SinewSettings {
   double cg_tolerance = 1e-9;  ///< StepSettings::cg_tolerance [m/s]
   double cfl = 0.9;            ///< StepSettings::cfl
   int threads = 1;             ///< StepSettings::threads (bit-identical for any count)
+  int newton_iterations = 0;   ///< StepSettings::newton_iterations (with implicit elasticity)
   /// 0: the bound nodes are hard-bound to their rings (W, no DOFs of their own). Positive: they stay
   /// free particles tied to their pivots by zero-rest-length binding springs of this stiffness
   /// (Coupling::attach, implicit in the step, eq. 5) [N/m].
