@@ -219,6 +219,49 @@ TEST(Newmark, NewtonIterationHoldsAFilmFrameStep) {
   EXPECT_LT(third, 0.5 * second) << first << " " << second << " " << third;
 }
 
+// Where every force is linear along the motion the linearisation is exact, so a Newton iteration must
+// change nothing (a wrong sign or a wrong linearisation point in its right-hand side would move the
+// answer by about dt^2/4 K v). A cloth tied node by node to fixed anchors by zero-rest-length binding
+// springs with k proportional to each node's mass, all anchors offset alike: every node accelerates
+// alike, the edge springs stay at rest, the binding springs are linear. Without implicit elasticity the
+// setting does nothing.
+TEST(Newmark, NewtonIterationChangesNothingWhereTheForcesAreLinear) {
+  auto run = [](int newton, bool implicit, int& done) {
+    System s;
+    ClothGridSettings grid;
+    grid.nx = grid.ny = 6;
+    grid.bending_stiffness = 0.0;
+    const ClothGrid cloth = add_cloth_grid(s, grid);
+    for (Index node : cloth.nodes) {
+      const Index anchor = s.add_kinematic_particle(s.particles().x.col(node) + Vec3(0.1, 0.0, 0.05));
+      BindingSpringSettings spring;
+      spring.a = node;
+      spring.b = anchor;
+      spring.stiffness = 1e4 * s.input_mass()[node];
+      spring.damping_ratio = 0.3;
+      s.add_binding_spring(spring);
+    }
+    s.step_settings().implicit_elasticity = implicit;
+    s.step_settings().cg_tolerance = 1e-13;
+    s.step_settings().newton_iterations = newton;
+    done = 0;
+    for (int i = 0; i < 10; ++i) done += s.step(1.0 / 24).newton_iterations;
+    return std::make_pair(Vectors3(s.particles().x), Vectors3(s.particles().v));
+  };
+  int done = 0;
+  const auto [x0, v0] = run(0, true, done);
+  const auto [x1, v1] = run(1, true, done);
+  EXPECT_EQ(done, 10);
+  EXPECT_LT((x1 - x0).cwiseAbs().maxCoeff(), 1e-10);
+  EXPECT_LT((v1 - v0).cwiseAbs().maxCoeff(), 1e-9);
+  EXPECT_GT(v0.cwiseAbs().maxCoeff(), 0.01);  // the cloth does move
+  const auto [xe, ve] = run(2, false, done);
+  EXPECT_EQ(done, 0);
+  int unused = 0;
+  const auto [xe0, ve0] = run(0, false, unused);
+  EXPECT_TRUE(xe == xe0 && ve == ve0);
+}
+
 TEST(Newmark, NegativeNewtonIterationsAreRefusedByName) {
   System s;
   s.add_particle(Vec3::Zero(), Vec3::Zero(), 1.0);

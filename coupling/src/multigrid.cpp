@@ -610,7 +610,7 @@ void AggregationMultigrid::cycle(int k) {
 }
 
 void AggregationMultigrid::apply(const Vectors3& r, Vectors3& z, const Blocks& inverse0) {
-  if (!m_built) fail("multigrid: apply before the first update");
+  if (!built()) fail("multigrid: apply before the first update has finished (both of its passes)");
   const Index n = m_particles;
   Level& l1 = m_levels.front();
   jacobi(n, kOmega0, inverse0, r, z, false);  // z is zero off the unknowns (inverse0 is)
