@@ -301,17 +301,28 @@ void Newmark::implicit_half_velocity(System& s, double dt, StepStats& stats) {
   if (trial) m_extrapolate = result.took_alternative;
   stats.ms.cg += ms_since(t);
   stats.linear_solve = linear_solve;
-  stats.cg_iterations_step1 += result.iterations;
+  record_solve(result, stats.cg_iterations_step1, stats);
+
+  keep_half_velocity(s);
+  if (m_implicit_elasticity && linear_solve)
+    for (int k = 0; k < s.m_step_settings.newton_iterations; ++k) newton_iteration(s, dt, stats);
+}
+
+// A solve's iterations (into `iterations`, step 1's or step 4's count), residual and convergence.
+void Newmark::record_solve(const SolveResult& result, int& iterations, StepStats& stats) {
+  iterations += result.iterations;
   stats.cg_residual = std::max(stats.cg_residual, result.residual);
   stats.cg_converged = stats.cg_converged && result.converged;
+}
 
+// Step 1's answer (in m_y) as the half-step velocities: kept for step 2 and step 4's guess, and set
+// on the particles and bodies.
+void Newmark::keep_half_velocity(System& s) {
   m_v_half = m_y.particles;
   m_twist_half = m_y.rigid;
   s.m_particles.v = m_y.particles;
   s.m_bodies.v = m_y.rigid.topRows<3>();
   s.m_bodies.w = m_y.rigid.bottomRows<3>();
-  if (m_implicit_elasticity && linear_solve)
-    for (int k = 0; k < s.m_step_settings.newton_iterations; ++k) newton_iteration(s, dt, stats);
 }
 
 // One Newton iteration on step 1 (StepSettings::newton_iterations): the implicit forces relinearised
@@ -338,17 +349,11 @@ void Newmark::newton_iteration(System& s, double dt, StepStats& stats) {
   m_refresh_preconditioner = true;
   const SolveResult result = solve(s, h, h, h, true);
   stats.ms.cg += ms_since(t);
-  stats.cg_iterations_step1 += result.iterations;
-  stats.cg_residual = std::max(stats.cg_residual, result.residual);
-  stats.cg_converged = stats.cg_converged && result.converged;
+  record_solve(result, stats.cg_iterations_step1, stats);
   ++stats.newton_iterations;
 
   restore_positions(s);
-  m_v_half = m_y.particles;
-  m_twist_half = m_y.rigid;
-  s.m_particles.v = m_y.particles;
-  s.m_bodies.v = m_y.rigid.topRows<3>();
-  s.m_bodies.w = m_y.rigid.bottomRows<3>();
+  keep_half_velocity(s);
 }
 
 // Step 2: x~^{n+1} = x^n + dt v~^{n+1/2}; rigid frames x_c += dt v_c, q = q(dt w^{n+1/2}) q^n
@@ -478,9 +483,7 @@ void Newmark::backward_euler_velocity(System& s, double dt, StepStats& stats) {
   m_refresh_preconditioner = false;
   const SolveResult result = solve(s, h, beta, m_implicit_elasticity ? h : 0.0, linear_solve);
   stats.ms.cg += ms_since(t);
-  stats.cg_iterations_step4 += result.iterations;
-  stats.cg_residual = std::max(stats.cg_residual, result.residual);
-  stats.cg_converged = stats.cg_converged && result.converged;
+  record_solve(result, stats.cg_iterations_step4, stats);
   m_v_half = m_y.particles;
   m_last_half.particles = m_y.particles;
   m_last_half.rigid = m_y.rigid;

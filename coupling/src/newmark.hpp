@@ -28,6 +28,7 @@ class Newmark {
   void process_collisions(System& s, double dt);                         // 3
   void backward_euler_velocity(System& s, double dt, StepStats& stats);  // 4
   void newton_iteration(System& s, double dt, StepStats& stats);        // after 1 (StepSettings)
+  void keep_half_velocity(System& s);  // step 1's answer in m_y -> m_v_half, m_twist_half, v, w
   void move_positions(System& s, double tau);  // x^n + tau v~^{n+1/2}, frames likewise (velocities kept)
   void restore_positions(System& s);           // back to x^n, exactly
   void extrapolate_velocity(System& s);                                  // 5
@@ -40,6 +41,7 @@ class Newmark {
     bool converged = true;
     bool took_alternative = false;  ///< solve() started from its alternative guess
   };
+  static void record_solve(const SolveResult& result, int& iterations, StepStats& stats);
   /// When solve() takes its alternative guess: only when that is exact to 1e-3 of the tolerance
   /// (max-norm of the preconditioned residual, and better than the first), or, unless the first
   /// guess already meets the tolerance, when the alternative does or its r . z

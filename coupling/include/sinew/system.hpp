@@ -92,9 +92,9 @@ struct StepSettings {
   /// 1 again: (M - dt/2 D - dt^2/4 K+) v = M v^n + dt/2 F(x_mid) - dt^2/4 K+ v_prev. One linearisation
   /// is too coarse where a long step turns the springs a lot: a 20x20 curtain at one 1/24 s step
   /// gains energy at each step (up to its whole scale); one iteration holds it. Each costs a force
-  /// evaluation and a solve (measured: a 1/60 s multigrid cloth step 26-31% dearer). Every force is evaluated at x_mid, so
-  /// forces kept explicit (tets, membranes, bending without its implicit flag) take a fixed-point
-  /// update there instead of staying at x^n. K+ drops the indefinite part of the stiffness, so the
+  /// evaluation and a solve (measured: a 1/60 s multigrid cloth step 26-31% dearer). Every force is
+  /// evaluated at x_mid, so forces kept explicit (tets, membranes, bending without its implicit flag)
+  /// take a fixed-point update there instead of staying at x^n. K+ drops the indefinite part of the stiffness, so the
   /// iterations converge linearly, not quadratically (on a cloth hung from a free rod at 1/24 s the
   /// position changes shrank 9.1e-3, 3.6e-3, 2.8e-3 m): one or two are what pays.
   int newton_iterations = 0;
