@@ -1,7 +1,8 @@
 #!/usr/bin/python3
 """Draws sinew-bench's work-precision plot: wall time per simulated second against the RMS node error
-at t = 1 s and at t = 2 s, each system against its own converged reference (reads DIR/work_precision.csv,
-writes DIR/work_precision.png). Usage: plot_bench.py DIR"""
+at t = 1 s and at t = 2 s, each system against its own converged reference, one row per cloth
+resolution; each system's line joins its front, the settings no other of its settings beats in both
+(reads DIR/work_precision.csv, writes DIR/work_precision.png). Usage: plot_bench.py DIR"""
 import csv
 import math
 import sys
@@ -30,20 +31,29 @@ def main(folder):
             continue
         series.setdefault((r["system"], int(r["n"])), []).append((err1, err2, ms, r["ticks"]))
     sizes = sorted({n for _, n in series})
-    dashes = ["-", "--", ":", "-."]
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5), sharey=True)
-    for ax, column, title in ((axes[0], 0, "RMS node error at t = 1 s"), (axes[1], 1, "RMS node error at t = 2 s")):
-        for (system, n), points in sorted(series.items()):
-            points.sort(key=lambda p: p[column])
-            color, marker = STYLE.get(system, ("black", "x"))
-            ax.plot([p[column] for p in points], [p[2] for p in points], marker=marker, color=color,
-                    linestyle=dashes[sizes.index(n) % len(dashes)], label=f"{system} {n}x{n}")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel(f"{title} vs own converged reference [m]")
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0].set_ylabel("wall time per simulated second [ms]")
-    axes[1].legend(fontsize=8, loc="best")
+    # One row of panels per cloth resolution (errors at t = 1 s and 2 s side by side), so the systems'
+    # curves at one resolution are read together.
+    fig, grid = plt.subplots(len(sizes), 2, figsize=(13, 4.6 * len(sizes)), squeeze=False)
+    for row, n in enumerate(sizes):
+        for column, title in ((0, "RMS node error at t = 1 s"), (1, "RMS node error at t = 2 s")):
+            ax = grid[row][column]
+            for (system, size), points in sorted(series.items()):
+                if size != n:
+                    continue
+                color, marker = STYLE.get(system, ("black", "x"))
+                # Every setting as a marker; the line joins the system's front, the settings that no
+                # other setting of the same system beats in both time and error.
+                ax.scatter([p[column] for p in points], [p[2] for p in points], marker=marker, color=color, alpha=0.45, s=22)
+                front = [p for p in points if not any(q[column] <= p[column] and q[2] <= p[2] and q != p for q in points)]
+                front.sort(key=lambda p: p[column])
+                ax.plot([p[column] for p in front], [p[2] for p in front], marker=marker, color=color, label=system)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_title(f"{n} x {n} cloth", fontsize=10)
+            ax.set_xlabel(f"{title} vs own converged reference [m]")
+            ax.set_ylabel("wall time per simulated second [ms]")
+            ax.grid(True, which="both", alpha=0.3)
+        grid[row][1].legend(fontsize=8, loc="best")
     fig.suptitle("Benchmark curtain: speed against error (lower left is better)")
     fig.tight_layout()
     fig.savefig(f"{folder}/work_precision.png", dpi=110)
