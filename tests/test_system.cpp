@@ -184,33 +184,37 @@ TEST(System, StepWithJointRowsAllocatesNothingAfterItsFirstCall) {
 
 // A cloth big enough for every parallel path (particle loops, CG vectors, chunked edge products):
 // 1 and 2 threads must give the same bits, with explicit and with implicit elasticity.
+// 50 x 50: element and per-particle force loops on two threads, the CG's vector loops serial;
+// 100 x 100: those too (parallel::kMinParallelLightItems).
 TEST(System, OneAndTwoThreadsAreBitIdentical) {
-  for (bool implicit : {false, true}) {
-    auto run = [implicit](int threads) {
-      System s;
-      scenes::HangingClothSettings settings;
-      settings.cloth.nx = settings.cloth.ny = 50;
-      scenes::add_hanging_cloth(s, settings);
-      EXPECT_GE(s.particles().size(), parallel::kMinParallelItems);
-      s.step_settings().threads = threads;
-      s.step_settings().implicit_elasticity = implicit;
-      s.step_settings().cg_tolerance = 1e-8;
-      const double dt = implicit ? 1.0 / 240 : 0.9 * s.stable_dt();
-      for (int i = 0; i < 8; ++i) s.step(dt);
-      return s;
-    };
-    const System a = run(1), b = run(2);
-    EXPECT_EQ(a.state_hash(), b.state_hash()) << (implicit ? "implicit" : "explicit") << " elasticity";
-    EXPECT_TRUE(a.particles().x == b.particles().x);
-    EXPECT_TRUE(a.particles().v == b.particles().v);
-    EXPECT_TRUE(a.rigid_bodies().w == b.rigid_bodies().w);
+  for (const int side : {50, 100}) {
+    for (bool implicit : {false, true}) {
+      auto run = [implicit, side](int threads) {
+        System s;
+        scenes::HangingClothSettings settings;
+        settings.cloth.nx = settings.cloth.ny = side;
+        scenes::add_hanging_cloth(s, settings);
+        EXPECT_GE(s.particles().size(), side == 50 ? parallel::kMinParallelItems : parallel::kMinParallelLightItems);
+        s.step_settings().threads = threads;
+        s.step_settings().implicit_elasticity = implicit;
+        s.step_settings().cg_tolerance = 1e-8;
+        const double dt = implicit ? 1.0 / 240 : 0.9 * s.stable_dt();
+        for (int i = 0; i < 8; ++i) s.step(dt);
+        return s;
+      };
+      const System a = run(1), b = run(2);
+      EXPECT_EQ(a.state_hash(), b.state_hash()) << side << " x " << side << ", " << (implicit ? "implicit" : "explicit") << " elasticity";
+      EXPECT_TRUE(a.particles().x == b.particles().x);
+      EXPECT_TRUE(a.particles().v == b.particles().v);
+      EXPECT_TRUE(a.rigid_bodies().w == b.rigid_bodies().w);
+    }
   }
 }
 
 TEST(System, ImplicitStepOfALargeClothOnTwoThreadsAllocatesNothing) {
   System s;
   scenes::HangingClothSettings settings;
-  settings.cloth.nx = settings.cloth.ny = 50;
+  settings.cloth.nx = settings.cloth.ny = 100;  // every loop of the step on two threads
   scenes::add_hanging_cloth(s, settings);
   s.step_settings().implicit_elasticity = true;
   s.step_settings().threads = 2;

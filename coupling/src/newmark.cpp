@@ -36,7 +36,7 @@ double dot(const GeneralizedVector& a, const GeneralizedVector& b) {
   thread_local std::vector<double> partial;
   partial.assign(static_cast<std::size_t>(blocks), 0.0);
   double* out = partial.data();
-  parallel::for_ranges_when(n >= 3 * parallel::kMinParallelItems, blocks, [&](Index b0, Index b1) {
+  parallel::for_ranges_when(n >= 3 * parallel::kMinParallelLightItems, blocks, [&](Index b0, Index b1) {
     for (Index k = b0; k < b1; ++k) {
       const Index begin = k * block, length = std::min(n, begin + block) - begin;
       out[k] = ConstFlatMap(pa + begin, length).dot(ConstFlatMap(pb + begin, length));
@@ -55,7 +55,7 @@ double implicit_b(const Force& f, double beta_el) { return f.has_definite_differ
 /// ranges start at even offsets so that maps of them stay 16-byte aligned.
 template <typename Body>
 void for_flat_ranges(Index n, Body&& body) {
-  const bool parallel = n >= 3 * parallel::kMinParallelItems;
+  const bool parallel = n >= 3 * parallel::kMinParallelLightItems;
   parallel::for_ranges_when(parallel, (n + 1) / 2, [&](Index p0, Index p1) { body(2 * p0, std::min(n, 2 * p1)); });
 }
 
@@ -83,7 +83,7 @@ void update_direction(const GeneralizedVector& z, double beta, GeneralizedVector
 double max_abs(const GeneralizedVector& v) {
   const Index n = v.particles.size();
   const double* pv = v.particles.data();
-  const int parts = n >= 3 * parallel::kMinParallelItems ? std::max(1, thread_count()) : 1;
+  const int parts = n >= 3 * parallel::kMinParallelLightItems ? std::max(1, thread_count()) : 1;
   thread_local std::vector<double> part;
   part.assign(static_cast<std::size_t>(parts), 0.0);
   double* out = part.data();
@@ -616,7 +616,7 @@ void Newmark::build_rhs(const System& s, double h, const Vectors3& v_start, cons
 // S u = M u - h W^T (D + beta K) W u on the unknowns; rows without unknowns return zero. W is applied
 // by clamping bound rows from the trial velocities (hard bindings are eliminated, not projected).
 void Newmark::apply(System& s, double h, double beta, double beta_el, const GeneralizedVector& u, GeneralizedVector& out) {
-  parallel::for_ranges(m_n, [&](Index i0, Index i1) {
+  parallel::for_ranges_when(m_n >= parallel::kMinParallelLightItems, m_n, [&](Index i0, Index i1) {
     m_tmp_v.middleCols(i0, i1 - i0) = u.particles.middleCols(i0, i1 - i0);
     m_apply_f.middleCols(i0, i1 - i0).setZero();
   });
@@ -770,7 +770,7 @@ void Newmark::precondition(const GeneralizedVector& r, GeneralizedVector& z) {
   const double* pb = m_inverse_blocks.data();
   const double* pr = r.particles.data();
   double* pz = z.particles.data();
-  parallel::for_ranges(m_n, [&](Index i0, Index i1) {
+  parallel::for_ranges_when(m_n >= parallel::kMinParallelLightItems, m_n, [&](Index i0, Index i1) {
     for (Index i = i0; i < i1; ++i) {
       const double* B = pb + 9 * i;
       const double r0 = pr[3 * i], r1 = pr[3 * i + 1], r2 = pr[3 * i + 2];
@@ -784,7 +784,7 @@ void Newmark::precondition(const GeneralizedVector& r, GeneralizedVector& z) {
 }
 
 void Newmark::project(GeneralizedVector& u) const {
-  parallel::for_ranges(m_n, [&](Index i0, Index i1) {
+  parallel::for_ranges_when(m_n >= parallel::kMinParallelLightItems, m_n, [&](Index i0, Index i1) {
     for (Index i = i0; i < i1; ++i)
       if (m_dynamic_mask[i] == 0.0) u.particles.col(i).setZero();
   });

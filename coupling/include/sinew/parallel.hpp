@@ -23,6 +23,15 @@ namespace parallel {
 /// benchmark curtain, two threads paid for a 40x40 cloth's 1600-node loops (its tick 2-4% faster
 /// than with 2048) and lost on a 20x20 cloth's 1100-edge loops (7% slower with 1024).
 inline constexpr Index kMinParallelItems = 1536;
+/// Loops that do a handful of flops per particle (vector updates, dot products, block-Jacobi
+/// preconditioning, clearing) run on the calling thread below this many particles. Such a loop costs
+/// about 1 ns per particle, while a parallel region costs 1-5 us (measured: 4.5 us for two threads on
+/// a 2-core KVM guest, AMD EPYC, where a serial pass over 1600 particles takes 1.1 us): below some
+/// 9000 particles the region costs more than the second thread saves. With these loops on two threads
+/// from 1536 particles, a 40x40 cloth's step ran slower on two threads than on one there (the benchmark
+/// curtain's 1/240 s tick 0.87 against 0.84 ms); with them serial, two threads are 9-15% faster than
+/// one (0.59 ms).
+inline constexpr Index kMinParallelLightItems = 8192;
 /// Element loops (ChunkedScatter) split into chunks from this many elements: below it, the split's
 /// extra buffers or passes cost more than a second thread saves (a 20x20 cloth's 1100 edges: 11%
 /// slower in two chunks). The chunks fix the order of the sums, so this is part of the results.
