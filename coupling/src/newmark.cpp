@@ -616,7 +616,7 @@ void Newmark::build_rhs(const System& s, double h, const Vectors3& v_start, cons
 // S u = M u - h W^T (D + beta K) W u on the unknowns; rows without unknowns return zero. W is applied
 // by clamping bound rows from the trial velocities (hard bindings are eliminated, not projected).
 void Newmark::apply(System& s, double h, double beta, double beta_el, const GeneralizedVector& u, GeneralizedVector& out) {
-  parallel::for_ranges_when(m_n >= parallel::kMinParallelLightItems, m_n, [&](Index i0, Index i1) {
+  parallel::for_light_ranges(m_n, [&](Index i0, Index i1) {
     m_tmp_v.middleCols(i0, i1 - i0) = u.particles.middleCols(i0, i1 - i0);
     m_apply_f.middleCols(i0, i1 - i0).setZero();
   });
@@ -770,7 +770,7 @@ void Newmark::precondition(const GeneralizedVector& r, GeneralizedVector& z) {
   const double* pb = m_inverse_blocks.data();
   const double* pr = r.particles.data();
   double* pz = z.particles.data();
-  parallel::for_ranges_when(m_n >= parallel::kMinParallelLightItems, m_n, [&](Index i0, Index i1) {
+  parallel::for_light_ranges(m_n, [&](Index i0, Index i1) {
     for (Index i = i0; i < i1; ++i) {
       const double* B = pb + 9 * i;
       const double r0 = pr[3 * i], r1 = pr[3 * i + 1], r2 = pr[3 * i + 2];
@@ -784,7 +784,7 @@ void Newmark::precondition(const GeneralizedVector& r, GeneralizedVector& z) {
 }
 
 void Newmark::project(GeneralizedVector& u) const {
-  parallel::for_ranges_when(m_n >= parallel::kMinParallelLightItems, m_n, [&](Index i0, Index i1) {
+  parallel::for_light_ranges(m_n, [&](Index i0, Index i1) {
     for (Index i = i0; i < i1; ++i)
       if (m_dynamic_mask[i] == 0.0) u.particles.col(i).setZero();
   });

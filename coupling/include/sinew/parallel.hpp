@@ -58,6 +58,13 @@ void for_ranges(Index n, Body&& body) {
   for_ranges_when(n >= kMinParallelItems, n, body);
 }
 
+/// for_ranges_when for loops of n particles that do a handful of flops each, parallel from
+/// kMinParallelLightItems on.
+template <typename Body>
+void for_light_ranges(Index n, Body&& body) {
+  for_ranges_when(n >= kMinParallelLightItems, n, body);
+}
+
 /// sum over i in [0, n) of term(i), in blocks of kReductionBlock whose sums are added in order:
 /// the same bits for every thread count.
 template <typename Term>
