@@ -116,10 +116,10 @@ TEST(SoftBinding, SynchronizedDriftIsPushedToParents) {
     const Index soft = s.add_particle(s.particles().x.col(t), Vec3::Zero(), 0.0);
     s.add_soft_binding({soft, t, SoftCoupling::synchronized, 0.0, 0.0, 0.0});
     const Vec3 dx(1e-6, -2e-6, 0.5e-6), dv(0.01, 0.02, -0.03);
-    s.set_collision_hook([&](CollisionContext& c) {
+    s.add_collision_source(make_collision_source("drift", [&](CollisionContext& c) {
       c.x->col(soft) += dx;
       c.v->col(soft) += dv;
-    });
+    }));
     s.finalize();
     const Vec3 before = s.particles().x.col(t);
     const double m_e = s.effective_mass_along(t, dv.normalized());

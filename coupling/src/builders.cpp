@@ -9,6 +9,37 @@
 
 namespace sinew {
 
+namespace {
+
+// The faces of a tet mesh that belong to one tet only, oriented outward (as the face sits in its
+// tet with positive volume: the opposite vertex behind it), in particle indices, in a fixed order.
+std::vector<std::array<Index, 3>> boundary_triangles(const std::vector<std::array<Index, 4>>& tets, const std::vector<Index>& particle) {
+  static constexpr int kFaces[4][3] = {{1, 2, 3}, {0, 3, 2}, {0, 1, 3}, {0, 2, 1}};
+  struct Face {
+    std::array<Index, 3> sorted, oriented;
+  };
+  std::vector<Face> faces;
+  for (const auto& t : tets)
+    for (const auto& f : kFaces) {
+      Face face;
+      face.oriented = {particle[t[f[0]]], particle[t[f[1]]], particle[t[f[2]]]};
+      face.sorted = face.oriented;
+      std::sort(face.sorted.begin(), face.sorted.end());
+      faces.push_back(face);
+    }
+  std::stable_sort(faces.begin(), faces.end(), [](const Face& a, const Face& b) { return a.sorted < b.sorted; });
+  std::vector<std::array<Index, 3>> boundary;
+  for (std::size_t i = 0; i < faces.size();) {
+    std::size_t j = i + 1;
+    while (j < faces.size() && faces[j].sorted == faces[i].sorted) ++j;
+    if (j - i == 1) boundary.push_back(faces[i].oriented);
+    i = j;
+  }
+  return boundary;
+}
+
+}  // namespace
+
 ClothGrid add_cloth_grid(System& system, const ClothGridSettings& s) {
   if (s.nx < 2 || s.ny < 2) fail("cloth grid: needs at least 2 x 2 nodes, got ", s.nx, " x ", s.ny);
   if (!(s.width > 0 && s.height > 0)) fail("cloth grid: width and height must be positive");
@@ -81,6 +112,7 @@ std::vector<Index> add_cloth_mesh(System& system, const Vectors3& vertices, cons
   if (s.membrane_mu > 0 || s.membrane_lambda > 0)
     system.add_force(std::make_unique<TriangleMembrane>(std::vector<TriangleMembrane::Triangle>(mapped.begin(), mapped.end()),
                                                         rest, TriangleMembraneSettings{s.membrane_mu, s.membrane_lambda, s.membrane_damping}));
+  system.add_collision_surface(mapped);
   return particle;
 }
 
@@ -111,6 +143,7 @@ std::vector<Index> add_volume(System& system, const Vectors3& vertices, const st
   settings.poisson_ratio = m.poisson_ratio;
   settings.beta = m.damping;
   system.add_force(std::make_unique<CorotatedTets>(std::move(mapped), system.particles().x, settings));
+  system.add_collision_surface(boundary_triangles(tets, particle));
   return particle;
 }
 

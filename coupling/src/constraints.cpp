@@ -11,7 +11,103 @@ void Constraints::reset(const Unknowns& unknowns) {
   m_unknowns = &unknowns;
   m_collisions.clear();
   m_collisions.reserve(static_cast<std::size_t>(unknowns.n));
+  m_single.clear();
+  m_single.reserve(static_cast<std::size_t>(unknowns.n));
+  m_collision_groups.clear();
+  m_collision_root.assign(static_cast<std::size_t>(unknowns.n), -1);
+  m_collision_count.assign(static_cast<std::size_t>(unknowns.n), 0);
+  m_collision_group_of.assign(static_cast<std::size_t>(unknowns.n), -1);
   m_joint_group_count = 0;
+}
+
+// Union-find over the particles of the constraints; a root with one constraint is a single, the others
+// become groups. The particle arrays are reset to -1 / 0 afterwards for the next step (no allocation
+// while every constraint is alone).
+void Constraints::prepare_collisions() {
+  m_single.clear();
+  m_collision_groups.clear();
+  std::vector<Index>& root = m_collision_root;
+  auto find = [&](Index i) {
+    while (root[i] != i) i = root[i] = root[root[i]];
+    return i;
+  };
+  for (const CollisionConstraint& c : m_collisions)
+    for (int a = 0; a < c.size; ++a) {
+      const Index i = c.particles[static_cast<std::size_t>(a)];
+      if (root[i] < 0) root[i] = i;
+      const Index r0 = find(c.particles[0]), r = find(i);
+      if (r != r0) root[std::max(r, r0)] = std::min(r, r0);
+    }
+  for (const CollisionConstraint& c : m_collisions) ++m_collision_count[find(c.particles[0])];
+  for (std::size_t k = 0; k < m_collisions.size(); ++k) {
+    const Index r = find(m_collisions[k].particles[0]);
+    if (m_collision_count[r] == 1) {
+      m_single.push_back(k);
+      continue;
+    }
+    if (m_collision_group_of[r] < 0) {
+      m_collision_group_of[r] = static_cast<Index>(m_collision_groups.size());
+      m_collision_groups.emplace_back();
+    }
+  }
+  if (!m_collision_groups.empty()) {
+    // Rows J (one per constraint, w_a n^T on each stencil particle's 3 columns) and targets per group.
+    std::vector<std::vector<std::size_t>> rows(m_collision_groups.size());
+    for (std::size_t k = 0; k < m_collisions.size(); ++k) {
+      const Index g = m_collision_group_of[find(m_collisions[k].particles[0])];
+      if (g < 0) continue;
+      rows[static_cast<std::size_t>(g)].push_back(k);
+      for (int a = 0; a < m_collisions[k].size; ++a)
+        m_collision_groups[static_cast<std::size_t>(g)].particles.push_back(m_collisions[k].particles[static_cast<std::size_t>(a)]);
+    }
+    for (std::size_t g = 0; g < m_collision_groups.size(); ++g) {
+      CollisionGroup& group = m_collision_groups[g];
+      std::sort(group.particles.begin(), group.particles.end());
+      group.particles.erase(std::unique(group.particles.begin(), group.particles.end()), group.particles.end());
+      const Index k = static_cast<Index>(group.particles.size()), m = static_cast<Index>(rows[g].size());
+      Eigen::MatrixXd J = Eigen::MatrixXd::Zero(m, 3 * k);
+      VectorXd t(m);
+      for (Index i = 0; i < m; ++i) {
+        const CollisionConstraint& c = m_collisions[rows[g][static_cast<std::size_t>(i)]];
+        t[i] = c.normal_velocity;
+        for (int a = 0; a < c.size; ++a) {
+          const auto slot = std::lower_bound(group.particles.begin(), group.particles.end(), c.particles[static_cast<std::size_t>(a)]) -
+                            group.particles.begin();
+          J.row(i).segment<3>(3 * slot) += c.weights[static_cast<std::size_t>(a)] * c.normal.transpose();
+        }
+      }
+      const Eigen::JacobiSVD<Eigen::MatrixXd> svd(J, Eigen::ComputeThinU | Eigen::ComputeThinV);
+      const VectorXd& sigma = svd.singularValues();
+      Index rank = 0;
+      while (rank < sigma.size() && sigma[rank] > 1e-10 * sigma[0]) ++rank;
+      group.basis = svd.matrixV().leftCols(rank);
+      const VectorXd coefficients = (svd.matrixU().leftCols(rank).transpose() * t).cwiseQuotient(sigma.head(rank));
+      group.particular = group.basis * coefficients;
+    }
+  }
+  for (const CollisionConstraint& c : m_collisions)
+    for (int a = 0; a < c.size; ++a) {
+      const Index i = c.particles[static_cast<std::size_t>(a)];
+      m_collision_count[i] = 0;
+      m_collision_group_of[i] = -1;
+      root[i] = -1;
+    }
+}
+
+void Constraints::project_collision_groups(GeneralizedVector& u, bool impose_targets) const {
+  for (const CollisionGroup& g : m_collision_groups) {
+    const Index k = static_cast<Index>(g.particles.size());
+    VectorXd u_g(3 * k);
+    for (Index j = 0; j < k; ++j) u_g.segment<3>(3 * j) = u.particles.col(g.particles[static_cast<std::size_t>(j)]);
+    u_g -= g.basis * (g.basis.transpose() * u_g);
+    if (impose_targets) u_g += g.particular;
+    for (Index j = 0; j < k; ++j) u.particles.col(g.particles[static_cast<std::size_t>(j)]) = u_g.segment<3>(3 * j);
+  }
+}
+
+void Constraints::impose_collisions(GeneralizedVector& u) const {
+  for (std::size_t k : m_single) shift(m_collisions[k], u, m_collisions[k].normal_velocity);
+  project_collision_groups(u, true);
 }
 
 void Constraints::project(GeneralizedVector& u) const {
@@ -26,11 +122,35 @@ void Constraints::project(GeneralizedVector& u) const {
 void Constraints::project_constraints(GeneralizedVector& u) const {
   for (Index b = 0; b < m_unknowns->r; ++b)
     if (!m_unknowns->dynamic_body[b]) u.rigid.col(b).setZero();
-  for (const CollisionConstraint& c : m_collisions) {
-    auto col = u.particles.col(c.particle);
-    col -= c.normal.dot(col) * c.normal;
-  }
+  for (std::size_t k : m_single) shift(m_collisions[k], u, 0.0);
+  project_collision_groups(u, false);
   project_joint_groups(u, false);
+}
+
+// The stencil's row J = [w_1 n^T ... w_k n^T] (n a unit vector): J J^T = sum w^2, and
+// u <- u + J^T (J J^T)^-1 (target - J u) sets J u to the target, moving u the least. With target 0
+// it is the orthogonal projection onto the row's null space, symmetric as projected CG needs. One
+// particle of weight 1 (a node against a surface) takes the short form.
+void Constraints::shift(const CollisionConstraint& c, GeneralizedVector& u, double target) {
+  if (c.size == 1 && c.weights[0] == 1.0) {
+    auto col = u.particles.col(c.particles[0]);
+    if (target == 0.0) {
+      col -= c.normal.dot(col) * c.normal;
+    } else {
+      col += (target - c.normal.dot(col)) * c.normal;
+    }
+    return;
+  }
+  double ju = 0.0, jj = 0.0;
+  for (int a = 0; a < c.size; ++a) {
+    const double w = c.weights[static_cast<std::size_t>(a)];
+    ju += w * c.normal.dot(u.particles.col(c.particles[static_cast<std::size_t>(a)]));
+    jj += w * w;
+  }
+  if (!(jj > 0.0)) return;
+  const double lambda = (target - ju) / jj;
+  for (int a = 0; a < c.size; ++a)
+    u.particles.col(c.particles[static_cast<std::size_t>(a)]) += (c.weights[static_cast<std::size_t>(a)] * lambda) * c.normal;
 }
 
 // Each joint group's twists u_g -> u_g - Q Q^T u_g (the rows' null space), plus the particular

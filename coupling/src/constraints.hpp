@@ -17,6 +17,10 @@ class Constraints {
   void reset(const Unknowns& unknowns);
   std::vector<CollisionConstraint>& collisions() { return m_collisions; }
   const std::vector<CollisionConstraint>& collisions() const { return m_collisions; }
+  /// Call once the collisions are final (after step 3): constraints that share a particle are
+  /// grouped and each group's rows factored, so that the projection onto all of them together is
+  /// exact and symmetric (a constraint alone takes the short form of shift()).
+  void prepare_collisions();
 
   /// Groups the dynamic bodies that joint rows connect and factors each group's rows (SVD), once per
   /// step: the orthonormal basis of the rows' span and the least-norm twists meeting the targets.
@@ -27,14 +31,33 @@ class Constraints {
   void project(GeneralizedVector& u) const;
   /// project() without the particle mask: for vectors already zero on rows without unknowns.
   void project_constraints(GeneralizedVector& u) const;
+  /// Sets the collision constraints' components of u to their normal velocities (the rest is kept).
+  void impose_collisions(GeneralizedVector& u) const;
   /// Sets the joint rows' components of the rigid twists in u to their targets (the rest is kept).
   void impose_joints(GeneralizedVector& u) const { project_joint_groups(u, true); }
 
  private:
   void project_joint_groups(GeneralizedVector& u, bool impose_targets) const;
+  /// u += J^T (J J^T)^-1 (target - J u) for constraint c's row J.
+  static void shift(const CollisionConstraint& c, GeneralizedVector& u, double target);
+
+  /// The rows' null-space projection of every group, plus the particular solution with `impose_targets`.
+  void project_collision_groups(GeneralizedVector& u, bool impose_targets) const;
 
   const Unknowns* m_unknowns = nullptr;
   std::vector<CollisionConstraint> m_collisions;
+  // Collision constraints alone on their particles (indices into m_collisions), and groups of those
+  // that share particles, each with an orthonormal basis of its rows and the least-norm velocities on
+  // its targets (as the joint groups below).
+  std::vector<std::size_t> m_single;
+  struct CollisionGroup {
+    std::vector<Index> particles;  // ascending
+    Eigen::MatrixXd basis;         // 3k x rank
+    VectorXd particular;           // 3k
+  };
+  std::vector<CollisionGroup> m_collision_groups;
+  std::vector<Index> m_collision_root;  // per particle: union-find parent, -1 when in no constraint
+  std::vector<Index> m_collision_count, m_collision_group_of;
   struct JointGroup {
     std::vector<Index> bodies;  // ascending
     Eigen::MatrixXd basis;      // 6k x rank, orthonormal, spanning the rows

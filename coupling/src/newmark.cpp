@@ -123,6 +123,7 @@ void Newmark::implicit_half_velocity(const StepModel& s, double dt, StepStats& s
   bool trial = false;
   GeneralizedVector* alternative = choose_step1_guess(s, dt, trial);
   m_constraints.collisions().clear();  // collisions are inactive in the first solve
+  m_constraints.prepare_collisions();
   stats.ms.forces += ms_since(t);
 
   t = Clock::now();
@@ -303,15 +304,15 @@ void Newmark::restore_positions(const StepModel& s) {
   s.hard.update_rigid_offsets(bodies);
 }
 
-// Step 3: (x~^{n+1}, v^n) -> (x^{n+1}, v~^n). Deformables only (section 5, step 4): the hook sees
-// free and soft-bound particles; synchronized soft particles start on their targets and whatever
-// drift the hook gives them is pushed back to the targets' parents.
+// Step 3: (x~^{n+1}, v^n) -> (x^{n+1}, v~^n). Deformables only (section 5, step 4): the collision
+// sources, in order, see free and soft-bound particles; synchronized soft particles start on their
+// targets and whatever drift the sources give them is pushed back to the targets' parents.
 void Newmark::process_collisions(const StepModel& s, double dt) {
   auto& p = s.particles;
   s.soft.synchronize(p, true, true);
   auto& constraints = m_constraints.collisions();
   constraints.clear();
-  if (s.collision_hook) {
+  if (!s.collision_sources.empty()) {
     CollisionContext context;
     context.time = s.time;
     context.dt = dt;
@@ -320,13 +321,18 @@ void Newmark::process_collisions(const StepModel& s, double dt) {
     context.v = &p.v;
     context.particles = &p;
     context.bodies = &s.bodies;
-    context.constraints = &constraints;
-    s.collision_hook(context);
-    for (const CollisionConstraint& c : constraints)
-      if (c.particle < 0 || c.particle >= m_unknowns.n || !is_dynamic(p.kind[c.particle]))
-        fail("collision hook: constraint on particle ", c.particle, ", which is not a free or soft-spring particle");
+    context.geometry = &s.geometry;
+    context.m_constraints = &constraints;
+    context.m_bodies = &s.bodies;
+    context.m_body_L = &m_body_L_n;
+    for (const auto& source : s.collision_sources) {
+      const std::size_t first = constraints.size();
+      source->process(context);
+      for (std::size_t c = first; c < constraints.size(); ++c) check_constraint(s, constraints[c], source->name());
+    }
     s.soft.push_drift(p, s.bodies, s.hard, s.effective_mass, m_body_L_n);
   }
+  m_constraints.prepare_collisions();
   s.hard.clamp_positions(p.x, s.bodies.x);
   s.hard.clamp_velocities(p.v, s.bodies.v, s.bodies.w);
   s.soft.synchronize(p, true, true);
@@ -377,10 +383,7 @@ void Newmark::backward_euler_velocity(const StepModel& s, double dt, StepStats& 
       m_y.rigid.col(b).tail<3>() = bodies.w.col(b);
     }
   }
-  for (const CollisionConstraint& c : m_constraints.collisions()) {
-    auto y = m_y.particles.col(c.particle);
-    y += (c.normal_velocity - c.normal.dot(y)) * c.normal;
-  }
+  m_constraints.impose_collisions(m_y);
   stats.ms.forces += ms_since(t);
 
   t = Clock::now();
@@ -497,6 +500,22 @@ SolveResult Newmark::solve(const StepModel& s, const SolveCoefficients& k, bool 
   }
   return m_cg.solve(m_system, m_c, m_y, settings.cg_tolerance, settings.cg_max_iterations, linear_solve, alternative, rule,
                     m_step_count);
+}
+
+void Newmark::check_constraint(const StepModel& s, const CollisionConstraint& c, std::string_view source) const {
+  if (c.size < 1 || c.size > 4) fail("collision source '", source, "': a constraint has ", c.size, " particles (1 to 4)");
+  if (!(c.normal.allFinite() && std::abs(c.normal.norm() - 1.0) < 1e-6 && std::isfinite(c.normal_velocity)))
+    fail("collision source '", source, "': a constraint's normal (", c.normal.transpose(), ") is not a unit vector or its velocity ",
+         c.normal_velocity, " is not finite");
+  for (int a = 0; a < c.size; ++a) {
+    const Index i = c.particles[static_cast<std::size_t>(a)];
+    if (i < 0 || i >= m_unknowns.n || !is_dynamic(s.particles.kind[i]))
+      fail("collision source '", source, "': constraint on particle ", i, ", which is not a free or soft-spring particle");
+    if (!std::isfinite(c.weights[static_cast<std::size_t>(a)]))
+      fail("collision source '", source, "': constraint on particle ", i, " has a non-finite weight");
+    for (int b = 0; b < a; ++b)
+      if (c.particles[static_cast<std::size_t>(b)] == i) fail("collision source '", source, "': particle ", i, " appears twice in a constraint");
+  }
 }
 
 void Newmark::check_finite(const StepModel& s, const char* phase) const {

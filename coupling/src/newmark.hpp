@@ -68,6 +68,8 @@ class Newmark {
     return m_has_damping || s.springs.size() > 0 || m_implicit_elasticity || m_constraints.has_joints();
   }
   void check_finite(const StepModel& s, const char* phase) const;
+  /// Throws naming `source` unless c is a valid stencil on rows with unknowns.
+  void check_constraint(const StepModel& s, const CollisionConstraint& c, std::string_view source) const;
 
   bool m_allocated = false;
   long m_step_count = 0;

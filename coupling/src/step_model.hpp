@@ -21,7 +21,8 @@ struct StepModel {
   const Vec3& gravity;
   const std::vector<JointRow>& joint_rows;
   const VectorXd& effective_mass;  ///< per row, +inf for kinematic
-  const CollisionHook& collision_hook;
+  std::span<const std::unique_ptr<CollisionSource>> collision_sources;
+  const CollisionGeometry& geometry;
   double time;  ///< t^n
 };
 

@@ -66,6 +66,8 @@ Index System::add_particle(const Vec3& x, const Vec3& v, double mass) {
   m_input_mass[i] = mass;
   m_particles.kind.push_back(ParticleKind::free);
   m_input_kind.push_back(ParticleKind::free);
+  m_geometry.group.push_back(kDefaultCollisionGroup);
+  m_geometry.mask.push_back(kAllCollisionGroups);
   return i;
 }
 
@@ -181,6 +183,35 @@ void System::set_binding_spring_ends(Index spring, Index a, Index b) {
     fail("binding spring ", spring, ": ends ", a, " and ", b, " both have infinite mass (kinematic or on kinematic parents)");
   m_springs.set_ends(spring, a, b);
   if (m_finalized) m_springs.set_damping_from_masses(m_inverse_effective_mass);
+}
+
+CollisionSource& System::add_collision_source(std::unique_ptr<CollisionSource> source) {
+  if (!source) fail("add_collision_source: null source");
+  m_collision_sources.push_back(std::move(source));
+  return *m_collision_sources.back();
+}
+
+void System::add_collision_surface(std::span<const std::array<Index, 3>> triangles) {
+  const Index n = m_particles.size();
+  for (std::size_t t = 0; t < triangles.size(); ++t)
+    for (Index i : triangles[t])
+      if (i < 0 || i >= n) fail("collision surface: triangle ", t, " has vertex ", i, ", which is not a particle (there are ", n, ")");
+  m_geometry.triangles.insert(m_geometry.triangles.end(), triangles.begin(), triangles.end());
+  // Each edge once, as (lower, higher), in a fixed (sorted) order.
+  std::vector<std::array<Index, 2>>& segments = m_geometry.segments;
+  for (const auto& t : triangles)
+    for (int e = 0; e < 3; ++e) {
+      const Index a = t[static_cast<std::size_t>(e)], b = t[static_cast<std::size_t>((e + 1) % 3)];
+      segments.push_back({std::min(a, b), std::max(a, b)});
+    }
+  std::sort(segments.begin(), segments.end());
+  segments.erase(std::unique(segments.begin(), segments.end()), segments.end());
+}
+
+void System::set_collision_filter(Index particle, std::uint32_t group, std::uint32_t mask) {
+  if (particle < 0 || particle >= m_particles.size()) fail("set_collision_filter: particle ", particle, " does not exist");
+  m_geometry.group[static_cast<std::size_t>(particle)] = group;
+  m_geometry.mask[static_cast<std::size_t>(particle)] = mask;
 }
 
 void System::set_joint_rows(std::vector<JointRow> rows) {
@@ -314,7 +345,7 @@ StepStats System::step(double dt) {
   finalize();
   set_thread_count(m_step_settings.threads);
   const StepModel model{m_particles, m_bodies, m_hard,         m_soft,          m_springs,        m_forces,
-                        m_step_settings, m_settings.gravity, m_joint_rows, m_effective_mass, m_collision_hook, m_time};
+                        m_step_settings, m_settings.gravity, m_joint_rows, m_effective_mass, m_collision_sources, m_geometry, m_time};
   StepStats stats = m_newmark->step(model, dt);
   m_time += dt;
   return stats;

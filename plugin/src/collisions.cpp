@@ -138,15 +138,55 @@ bool signed_distance(const btCollisionShape* shape, const btTransform& frame, co
   return false;
 }
 
-DeformableCollisions::DeformableCollisions(btCollisionWorld* world, const CollisionSettings& settings)
-    : m_world(world), m_settings(settings) {
+BulletCollisions::BulletCollisions(btCollisionWorld* world, const CollisionSettings& settings,
+                                   const std::unordered_map<const btCollisionObject*, Index>* rigid_particles)
+    : m_world(world), m_settings(settings), m_rigid_particles(rigid_particles) {
   if (!(std::isfinite(settings.thickness) && settings.thickness > 0))
     fail("collision settings: thickness ", settings.thickness, " must be positive and finite");
   if (!(std::isfinite(settings.friction) && settings.friction >= 0))
     fail("collision settings: friction ", settings.friction, " must be non-negative and finite");
 }
 
-void DeformableCollisions::process(CollisionContext& c) {
+int BulletCollisions::closest_object(const CollisionContext& c, Index i, double& phi, Vec3& normal) const {
+  const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
+  const double thickness = m_settings.thickness;
+  const Vectors3& x = *c.x;
+  const btVector3 p = to_bullet(x.col(i));
+  int hit = -1;
+  phi = kInfinity;
+  normal = Vec3::Zero();
+  for (int o = 0; o < objects.size(); ++o) {
+    const btVector3& lo = m_aabb_min[o];
+    const btVector3& hi = m_aabb_max[o];
+    if (p.x() < lo.x() || p.y() < lo.y() || p.z() < lo.z() || p.x() > hi.x() || p.y() > hi.y() || p.z() > hi.z()) continue;
+    if (const btBroadphaseProxy* proxy = objects[o]->getBroadphaseHandle())
+      if (!c.geometry->collides(i, static_cast<std::uint32_t>(proxy->m_collisionFilterGroup),
+                                static_cast<std::uint32_t>(proxy->m_collisionFilterMask)))
+        continue;
+    double d;
+    Vec3 n;
+    if (!signed_distance(objects[o]->getCollisionShape(), objects[o]->getWorldTransform(), x.col(i), thickness, d, n)) continue;
+    if (d < 0.0 && d < phi) {
+      // Entered this step: push back out through the side the particle came from, so a thin body
+      // is not crossed by projecting to its far face.
+      double d_n;
+      Vec3 n_n;
+      if (signed_distance(objects[o]->getCollisionShape(), objects[o]->getWorldTransform(), c.x_n->col(i), thickness, d_n, n_n) &&
+          d_n > 0.0) {
+        n = n_n;
+        d = d_n + n_n.dot(x.col(i) - c.x_n->col(i));
+      }
+    }
+    if (d < phi) {
+      phi = d;
+      normal = n;
+      hit = o;
+    }
+  }
+  return hit;
+}
+
+void BulletCollisions::process(CollisionContext& c) {
   const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
   const int count = objects.size();
   m_aabb_min.resize(static_cast<std::size_t>(count));
@@ -167,45 +207,31 @@ void DeformableCollisions::process(CollisionContext& c) {
   for (Index i = 0; i < particles.size(); ++i) {
     const ParticleKind kind = particles.kind[i];
     if (kind != ParticleKind::free && kind != ParticleKind::soft_spring && kind != ParticleKind::soft_synchronized) continue;
-    const btVector3 p = to_bullet(x.col(i));
-    // The closest surface within reach over all objects.
-    int hit = -1;
-    double phi = kInfinity;
-    Vec3 normal = Vec3::Zero();
-    for (int o = 0; o < count; ++o) {
-      const btVector3& lo = m_aabb_min[o];
-      const btVector3& hi = m_aabb_max[o];
-      if (p.x() < lo.x() || p.y() < lo.y() || p.z() < lo.z() || p.x() > hi.x() || p.y() > hi.y() || p.z() > hi.z()) continue;
-      double d;
-      Vec3 n;
-      if (!signed_distance(objects[o]->getCollisionShape(), objects[o]->getWorldTransform(), x.col(i), thickness, d, n)) continue;
-      if (d < 0.0 && d < phi) {
-        // Entered this step: push back out through the side the particle came from, so a thin body
-        // is not crossed by projecting to its far face.
-        double d_n;
-        Vec3 n_n;
-        if (signed_distance(objects[o]->getCollisionShape(), objects[o]->getWorldTransform(), c.x_n->col(i), thickness, d_n, n_n) &&
-            d_n > 0.0) {
-          n = n_n;
-          d = d_n + n_n.dot(x.col(i) - c.x_n->col(i));
-        }
-      }
-      if (d < phi) {
-        phi = d;
-        normal = n;
-        hit = o;
-      }
-    }
+    double phi;
+    Vec3 normal;
+    const int hit = closest_object(c, i, phi, normal);
     if (hit < 0 || phi >= thickness) continue;
     ++m_contacts;
     m_deepest = std::max(m_deepest, thickness - phi);
     const btCollisionObject* object = objects[hit];
-    const btRigidBody* rigid = btRigidBody::upcast(object);
+    btRigidBody* rigid = const_cast<btRigidBody*>(btRigidBody::upcast(object));
+    const bool prescribed = !rigid || rigid->isStaticOrKinematicObject();
+    // A dynamic body the system has as a rigid-body particle moves with the particle's twist, which
+    // carries the impulses earlier contacts of this step gave it.
+    Index particle_body = -1;
+    if (!prescribed && m_rigid_particles) {
+      const auto found = m_rigid_particles->find(object);
+      if (found != m_rigid_particles->end()) particle_body = found->second;
+    }
     Vec3 v_body = Vec3::Zero();
     btVector3 arm(0, 0, 0);
     if (rigid) {
-      arm = p - rigid->getCenterOfMassPosition();
-      v_body = to_eigen(rigid->getVelocityInLocalPoint(arm));
+      arm = to_bullet(x.col(i)) - rigid->getCenterOfMassPosition();
+      if (particle_body >= 0) {
+        v_body = c.bodies->v.col(particle_body) + Vec3(c.bodies->w.col(particle_body)).cross(to_eigen(arm));
+      } else {
+        v_body = to_eigen(rigid->getVelocityInLocalPoint(arm));
+      }
     }
     x.col(i) += (thickness - phi) * normal;
     const Vec3 v_old = v.col(i);
@@ -218,17 +244,34 @@ void DeformableCollisions::process(CollisionContext& c) {
       if (slip > 0.0) v_t *= std::max(0.0, 1.0 - m_settings.friction * (-vn) / slip);
       v.col(i) = v_body + v_t;
     }
-    if (!rigid || rigid->isStaticOrKinematicObject()) {
+    if (prescribed) {
       // A prescribed surface also holds the particle in step 4 (a projection: its reaction goes to
       // a body of infinite mass, so no momentum is lost).
-      if (is_dynamic(kind)) c.constraints->push_back({i, normal, normal.dot(v_body)});
-    } else {
-      // Equal and opposite: the particle's momentum change goes into the dynamic body at the contact.
-      // No step-4 constraint here: its reaction would have nowhere to go.
-      const Vec3 j = particles.mass[i] * (v.col(i) - v_old);
-      if (!j.isZero(0.0)) const_cast<btRigidBody*>(rigid)->applyImpulse(-to_bullet(j), arm);
+      if (is_dynamic(kind)) c.add_constraint(CollisionConstraint::point(i, normal, normal.dot(v_body)));
+      continue;
     }
+    // Equal and opposite: the particle's momentum change goes into the dynamic body at the contact.
+    // No step-4 constraint here: its reaction would have nowhere to go.
+    const Vec3 j = particles.mass[i] * (v.col(i) - v_old);
+    if (j.isZero(0.0)) continue;
+    if (particle_body >= 0) {
+      c.apply_body_impulse(particle_body, x.col(i), -j);
+      continue;
+    }
+    auto pending = std::find_if(m_pending.begin(), m_pending.end(), [&](const Pending& p) { return p.body == rigid; });
+    if (pending == m_pending.end()) pending = m_pending.insert(m_pending.end(), {rigid, btVector3(0, 0, 0), btVector3(0, 0, 0)});
+    pending->impulse -= to_bullet(j);
+    pending->torque_impulse -= arm.cross(to_bullet(j));
   }
+}
+
+void BulletCollisions::apply_pending_impulses() {
+  for (const Pending& p : m_pending) {
+    p.body->applyCentralImpulse(p.impulse);
+    p.body->applyTorqueImpulse(p.torque_impulse);
+    p.body->activate(true);
+  }
+  m_pending.clear();
 }
 
 }  // namespace sinew::bullet

@@ -54,8 +54,9 @@ Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m
     g_registry.emplace_back(world, this);
   }
   if (settings.collisions) {
-    m_collisions = std::make_unique<DeformableCollisions>(world, CollisionSettings{settings.thickness, settings.friction});
-    m_system.set_collision_hook([this](CollisionContext& context) { m_collisions->process(context); });
+    auto collisions = std::make_unique<BulletCollisions>(world, CollisionSettings{settings.thickness, settings.friction}, &m_rigid_particles);
+    m_collisions = collisions.get();
+    m_system.add_collision_source(std::move(collisions));
   }
   m_app_pre_tick = TickCallbackAccess::pre_tick(*world);
   m_app_post_tick = TickCallbackAccess::post_tick(*world);
@@ -96,8 +97,7 @@ void Coupling::follow_bodies() {
 
 Index Coupling::rigid_particle(btRigidBody* body) {
   if (!body) fail("bullet coupling: rigid body is null");
-  for (std::size_t b = 0; b < m_bodies.size(); ++b)
-    if (m_bodies[b] == body) return static_cast<Index>(b);
+  if (const auto found = m_rigid_particles.find(body); found != m_rigid_particles.end()) return found->second;
   if (m_system.finalized()) fail("bullet coupling: a new rigid body cannot join after the first tick");
   const btTransform& frame = body->getCenterOfMassTransform();
   RigidBodySettings s;
@@ -117,6 +117,7 @@ Index Coupling::rigid_particle(btRigidBody* body) {
   s.gravity = false;  // gravity comes with Bullet's total force on the body, copied in every tick
   const Index b = m_system.add_rigid_body(s);
   m_bodies.push_back(body);
+  m_rigid_particles.emplace(body, b);
   return b;
 }
 
@@ -160,6 +161,7 @@ StepStats Coupling::tick(double dt) {
   copy_state_in();
   copy_joints_in(dt);
   m_last = m_system.advance(dt);  // substeps when the tick exceeds the elastic forces' stable step
+  if (m_collisions) m_collisions->apply_pending_impulses();
   hand_over_position_velocity(dt);
   return m_last;
 }
@@ -209,10 +211,8 @@ void Coupling::hand_over_position_velocity(double dt) {
     m_v_position.col(i) = (bodies.x.col(i) - m_x_in.col(i)) / dt;
     const Eigen::AngleAxisd turn(bodies.q[i] * m_q_in[b].conjugate());
     m_w_position.col(i) = turn.angle() * turn.axis() / dt;
-    // Impulses collisions gave the body during the step (applied to Bullet directly) stay with it.
-    const Vec3 dv_collisions = to_eigen(body->getLinearVelocity()) - m_v_in.col(i);
-    const Vec3 dw_collisions = to_eigen(body->getAngularVelocity()) - m_w_in.col(i);
-    hand_over(body, m_v_position.col(i) + dv_collisions, m_w_position.col(i) + dw_collisions, dt);
+    // Collision impulses on the body are in the step's twist already (CollisionContext::apply_body_impulse).
+    hand_over(body, m_v_position.col(i), m_w_position.col(i), dt);
     body->activate(true);
   }
   m_handed_over = true;

@@ -9,6 +9,7 @@
 #pragma once
 
 #include "sinew/binding_springs.hpp"
+#include "sinew/collision.hpp"
 #include "sinew/force.hpp"
 #include "sinew/hard_bindings.hpp"
 #include "sinew/particles.hpp"
@@ -110,14 +111,6 @@ struct StepSettings {
   bool gyroscopic_correction = true;
 };
 
-/// Velocity constraint from a collision in step 3, enforced in the step-4 solve by projection:
-/// the particle's velocity along `normal` is `normal_velocity`.
-struct CollisionConstraint {
-  Index particle = -1;
-  Vec3 normal = Vec3::UnitY();
-  double normal_velocity = 0.0;
-};
-
 /// One row of a joint between rigid-body particles (a rigid solver's bilateral constraint, for
 /// instance a slider's): J_a . (v_a, w_a) + J_b . (v_b, w_b) = target, with v the centre-of-mass
 /// velocity and w the angular velocity, both world, and body_b = -1 for a joint to the fixed world.
@@ -131,21 +124,6 @@ struct JointRow {
   Vec6 j_b = Vec6::Zero();
   double target = 0.0;  ///< [m/s]
 };
-
-/// What the step-3 collision hook sees and may change: (x~^{n+1}, v^n) -> (x^{n+1}, v~^n).
-/// Only free and soft-bound rows may be changed; hard-bound rows are recomputed from their
-/// parents afterwards and kinematic rows are prescribed.
-struct CollisionContext {
-  double time = 0;                     ///< t^n
-  double dt = 0;
-  const Vectors3* x_n = nullptr;       ///< positions at t^n
-  Vectors3* x = nullptr;               ///< in: x~^{n+1}, out: x^{n+1}
-  Vectors3* v = nullptr;               ///< in: v^n, out: v~^n
-  const Particles* particles = nullptr;
-  const RigidBodyParticles* bodies = nullptr;  ///< at the predicted frames (x~_c^{n+1}, q~^{n+1})
-  std::vector<CollisionConstraint>* constraints = nullptr;
-};
-using CollisionHook = std::function<void(CollisionContext&)>;
 
 class System {
  public:
@@ -197,7 +175,15 @@ class System {
     add_force_impl(std::move(force));
     return ref;
   }
-  void set_collision_hook(CollisionHook hook) { m_collision_hook = std::move(hook); }
+  /// Appends a collision source to step 3's list; sources run in the order they were added.
+  CollisionSource& add_collision_source(std::unique_ptr<CollisionSource> source);
+  std::span<const std::unique_ptr<CollisionSource>> collision_sources() const { return m_collision_sources; }
+  /// Registers deformable surface triangles (particle indices) for the collision sources, and each of
+  /// their edges once; the builders call it for every cloth and volume surface.
+  void add_collision_surface(std::span<const std::array<Index, 3>> triangles);
+  /// Collision filter of a particle (Bullet's convention: group bits, and the groups it collides with).
+  void set_collision_filter(Index particle, std::uint32_t group, std::uint32_t mask);
+  const CollisionGeometry& collision_geometry() const { return m_geometry; }
   /// Replaces the joint rows between rigid-body particles (see JointRow); they hold until replaced,
   /// so a caller whose joints turn with the bodies sets them before every step. Validated here.
   void set_joint_rows(std::vector<JointRow> rows);
@@ -275,7 +261,8 @@ class System {
   SoftBindings m_soft;
   BindingSprings m_springs;
   std::vector<std::unique_ptr<Force>> m_forces;
-  CollisionHook m_collision_hook;
+  std::vector<std::unique_ptr<CollisionSource>> m_collision_sources;
+  CollisionGeometry m_geometry;
   VectorXd m_inverse_effective_mass;  // per row, 0 for infinite mass
   VectorXd m_effective_mass;          // per row, +inf for kinematic, m_e for bound rows
   std::vector<double> m_force_stable_dt;  // Force::stable_dt per force at these masses (stable_dt())

@@ -6,6 +6,8 @@
 
 #include <btBulletDynamicsCommon.h>
 
+#include <string_view>
+#include <unordered_map>
 #include <vector>
 
 namespace sinew::bullet {
@@ -23,22 +25,42 @@ struct CollisionSettings {
   double friction = 0.3;    ///< Coulomb coefficient between cloth and rigid surfaces
 };
 
-/// Collides free and soft-bound particles with every collision object of a world, in the world's
-/// object order (deterministic): projects penetrating particles out to the thickness, removes their
-/// approaching normal velocity relative to the surface with Coulomb friction on the tangential part,
-/// hands step 4 a velocity constraint, and gives dynamic bodies the opposite impulse.
-class DeformableCollisions {
+/// The Bullet world's collision objects as a collision source of step 3: collides free and soft-bound
+/// particles with every object whose filter admits them (CollisionGeometry::collides with the
+/// object's broadphase group and mask), in the world's object order (deterministic): projects
+/// penetrating particles out to the thickness, removes their approaching normal velocity relative to
+/// the surface with Coulomb friction on the tangential part, and hands step 4 a velocity constraint
+/// against prescribed (static, kinematic) surfaces. A dynamic body takes the opposite impulse: through
+/// its rigid-body particle when the system has one (so the step carries it, and Bullet receives it
+/// with the rest of the step's momentum), else summed per body and handed to Bullet once, by
+/// apply_pending_impulses() after the step.
+class BulletCollisions final : public CollisionSource {
  public:
-  DeformableCollisions(btCollisionWorld* world, const CollisionSettings& settings);
-  void process(CollisionContext& context);
+  /// rigid_particles: the coupling's map from a Bullet body to its rigid-body particle (outlives this).
+  BulletCollisions(btCollisionWorld* world, const CollisionSettings& settings,
+                   const std::unordered_map<const btCollisionObject*, Index>* rigid_particles);
+  std::string_view name() const override { return "bullet shapes"; }
+  void process(CollisionContext& context) override;
+  /// Applies the summed impulses on dynamic bodies without a rigid-body particle, once each.
+  void apply_pending_impulses();
   /// Deepest penetration below the thickness seen at the last call, before projection [m].
   double deepest_penetration() const { return m_deepest; }
   int contacts() const { return m_contacts; }
 
  private:
+  /// The object nearest to x within reach whose filter admits particle i: index, signed distance and
+  /// normal (taken from the side the particle came from when it entered this step). -1 when none.
+  int closest_object(const CollisionContext& c, Index i, double& phi, Vec3& normal) const;
+
   btCollisionWorld* m_world;
   CollisionSettings m_settings;
+  const std::unordered_map<const btCollisionObject*, Index>* m_rigid_particles;
   std::vector<btVector3> m_aabb_min, m_aabb_max;
+  struct Pending {
+    btRigidBody* body;
+    btVector3 impulse, torque_impulse;
+  };
+  std::vector<Pending> m_pending;
   double m_deepest = 0.0;
   int m_contacts = 0;
 };

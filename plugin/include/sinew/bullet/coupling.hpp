@@ -14,8 +14,10 @@
 #include <LinearMath/btScalar.h>
 
 #include <memory>
+#include <unordered_map>
 #include <vector>
 
+class btCollisionObject;
 class btDynamicsWorld;
 class btRigidBody;
 
@@ -33,7 +35,7 @@ struct CouplingSettings {
   double friction = 0.3;    ///< Coulomb coefficient
 };
 
-class DeformableCollisions;
+class BulletCollisions;
 
 class Coupling {
  public:
@@ -100,7 +102,8 @@ class Coupling {
   void (*m_app_pre_tick)(btDynamicsWorld*, btScalar) = nullptr;
   void (*m_app_post_tick)(btDynamicsWorld*, btScalar) = nullptr;
   StepStats m_last;
-  std::unique_ptr<DeformableCollisions> m_collisions;
+  BulletCollisions* m_collisions = nullptr;  // owned by the system's collision sources
+  std::unordered_map<const btCollisionObject*, Index> m_rigid_particles;  // m_bodies' inverse
 };
 
 }  // namespace sinew::bullet

@@ -1,0 +1,106 @@
+// Collisions in step 3 of the Newmark step (Sifakis et al. 2007, section 3.3): (x~^{n+1}, v^n) ->
+// (x^{n+1}, v~^n), deformables only (section 5, step 4).
+//
+// A System runs an ordered list of collision sources (System::add_collision_source). Each sees the
+// predicted positions, the velocities, the rigid-body particles at their predicted frames and the
+// collision geometry the builders registered (surface triangles, their edges, per-particle filter
+// groups and masks as in Bullet), and may move free and soft-bound particles, change their
+// velocities, hand the step-4 solve velocity constraints on weighted stencils of particles, and
+// give rigid-body particles impulses. Impulses go to the rigid-body particles through the context,
+// so that a rigid solver coupled to the system receives the bodies' momentum change once, from the
+// step, with everything else (section 5).
+#pragma once
+
+#include "sinew/particles.hpp"
+#include "sinew/rigid_body_particles.hpp"
+
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace sinew {
+
+/// A velocity constraint from step 3 on a weighted stencil of up to four particles, enforced in the
+/// step-4 solve by projection: sum_i w_i n . v_i = normal_velocity. A node against a rigid surface is
+/// one particle of weight 1; a node against a triangle (1, -b0, -b1, -b2) with b the barycentric
+/// coordinates of the closest point; an edge against an edge (a0, a1, -b0, -b1). Every particle of a
+/// stencil must have unknowns (free or soft-spring) and appear once.
+struct CollisionConstraint {
+  std::array<Index, 4> particles{-1, -1, -1, -1};
+  std::array<double, 4> weights{1.0, 0.0, 0.0, 0.0};
+  int size = 1;
+  Vec3 normal = Vec3::UnitY();
+  double normal_velocity = 0.0;  ///< [m/s]
+
+  /// One particle against a surface moving at normal_velocity along the unit normal n.
+  static CollisionConstraint point(Index particle, const Vec3& n, double normal_velocity) {
+    CollisionConstraint c;
+    c.particles[0] = particle;
+    c.normal = n;
+    c.normal_velocity = normal_velocity;
+    return c;
+  }
+};
+
+/// Bullet's default collision filter: every particle is in group 1 and collides with every group.
+inline constexpr std::uint32_t kDefaultCollisionGroup = 1;
+inline constexpr std::uint32_t kAllCollisionGroups = 0xffffffffu;
+
+/// What the builders registered for the collision sources: the deformables' surface triangles and
+/// their edges (particle indices), and each particle's filter (group, mask). Two things collide only
+/// when each one's group is in the other's mask, as in Bullet's broadphase filtering.
+struct CollisionGeometry {
+  std::vector<std::array<Index, 3>> triangles;
+  std::vector<std::array<Index, 2>> segments;  ///< each edge of `triangles` once, (lower, higher)
+  std::vector<std::uint32_t> group, mask;      ///< per particle
+
+  /// True when particle i and a thing with filter (group, mask) may collide.
+  bool collides(Index i, std::uint32_t other_group, std::uint32_t other_mask) const {
+    return (group[static_cast<std::size_t>(i)] & other_mask) != 0 && (other_group & mask[static_cast<std::size_t>(i)]) != 0;
+  }
+};
+
+/// What a collision source sees and may change in step 3. Only free and soft-bound rows may be
+/// moved; hard-bound rows are recomputed from their parents afterwards and kinematic rows are
+/// prescribed.
+class CollisionContext {
+ public:
+  double time = 0;  ///< t^n
+  double dt = 0;
+  const Vectors3* x_n = nullptr;  ///< positions at t^n
+  Vectors3* x = nullptr;          ///< in: x~^{n+1}, out: x^{n+1}
+  Vectors3* v = nullptr;          ///< in: v^n, out: v~^n
+  const Particles* particles = nullptr;
+  const RigidBodyParticles* bodies = nullptr;  ///< at the predicted frames (x~_c^{n+1}, q~^{n+1})
+  const CollisionGeometry* geometry = nullptr;
+
+  /// Hands step 4 a velocity constraint (checked after every source has run).
+  void add_constraint(const CollisionConstraint& c) { m_constraints->push_back(c); }
+  /// Impulse j [N s] at world point `point` on rigid-body particle `body`: dv_c = j / m, dw = I^-1
+  /// (r x j) with r from the predicted centre of mass, and the body's angular momentum at t^n, from
+  /// which step 4 starts, gains r x j. Kinematic bodies (infinite mass) do not move.
+  void apply_body_impulse(Index body, const Vec3& point, const Vec3& j);
+
+  // Set by the step.
+  std::vector<CollisionConstraint>* m_constraints = nullptr;
+  RigidBodyParticles* m_bodies = nullptr;
+  Vectors3* m_body_L = nullptr;
+};
+
+/// One collision source of step 3 (a rigid solver's shapes, a ground plane, self-contact, ...).
+class CollisionSource {
+ public:
+  virtual ~CollisionSource() = default;
+  /// Used in messages and timings.
+  virtual std::string_view name() const = 0;
+  virtual void process(CollisionContext& context) = 0;
+};
+
+/// A collision source from a function (tests, applications with their own contact code).
+std::unique_ptr<CollisionSource> make_collision_source(std::string name, std::function<void(CollisionContext&)> process);
+
+}  // namespace sinew
