@@ -3,6 +3,7 @@
 # (sinew::bullet and sinew::mesh), like tests/package. The first block must also appear verbatim in
 # SAME_AS (demos/hello.cpp), so the README shows the program the build ships.
 # Arguments: -DREADME=... -DSAME_AS=... -DBUILD_DIR=... -DWORK_DIR=...
+cmake_minimum_required(VERSION 3.25)
 file(REMOVE_RECURSE "${WORK_DIR}")
 file(READ "${README}" text)
 
