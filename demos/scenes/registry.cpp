@@ -1,5 +1,9 @@
 #include "scene.hpp"
 
+#include <algorithm>
+#include <cctype>
+#include <cstring>
+
 namespace sinew::scenes {
 
 namespace {
@@ -22,8 +26,11 @@ const char* to_string(SceneKind kind) {
 }
 
 bool register_scene(SceneInfo info) {
-  if (info.name.empty() || info.name.find_first_of(" \t\n") != std::string::npos)
-    fail("scene registry: scene name '", info.name, "' must be one word");
+  // Names become CTest names, file names (.ci/gallery) and shell words: letters, digits and - _ . /.
+  const bool word = !info.name.empty() && std::all_of(info.name.begin(), info.name.end(), [](char ch) {
+    return std::isalnum(static_cast<unsigned char>(ch)) || std::strchr("-_./", ch) != nullptr;
+  });
+  if (!word) fail("scene registry: scene name '", info.name, "' must be one word of letters, digits and - _ . /");
   if (info.description.empty() || info.description.find('\n') != std::string::npos)
     fail("scene registry: scene '", info.name, "' needs a one-line description");
   if (!info.make) fail("scene registry: scene '", info.name, "' has no factory");

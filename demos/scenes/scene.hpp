@@ -58,7 +58,7 @@ class Scene {
 using SceneFactory = std::function<std::unique_ptr<Scene>(const SceneParams&)>;
 
 struct SceneInfo {
-  std::string name;         ///< one word ("curtain", "stability/spin_100"): no spaces
+  std::string name;         ///< one word of letters, digits and - _ . / ("curtain", "stability/spin_100")
   std::string description;  ///< one line
   SceneKind kind = SceneKind::core;
   SceneFactory make;
@@ -67,7 +67,7 @@ struct SceneInfo {
   bool takes_grid = false;  ///< the factory reads SceneParams::nx, ny
 };
 
-/// Adds a scene to the registry; throws sinew::Error for an empty or spaced name, a name taken
+/// Adds a scene to the registry; throws sinew::Error for a name that is not one such word, a name taken
 /// already, a description that is empty or not one line, or no factory. Returns true (for the
 /// static registrar SINEW_REGISTER_SCENE).
 bool register_scene(SceneInfo info);
