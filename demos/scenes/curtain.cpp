@@ -30,8 +30,8 @@ btCollisionShape* ring_shape(BulletWorld& w, double R, double r, int segments) {
 //
 // The main demo (.ci/demo), so it must run in real time. The springs enter sinew's solves
 // (implicit_elasticity), so they no longer limit its step: with bending explicit, whose stable step at
-// this spacing is about a 1/240 s tick, sinew takes one step per Bullet tick; explicit, the springs
-// asked for several substeps a tick (about 40 ms a frame on the 2-core machine). Bending implicit too
+// this spacing is about a 1/240 s tick, sinew takes one step per Bullet tick; explicit, the springs'
+// stable step asked for substeps inside each tick (about 40 ms a frame on the 2-core machine). Bending implicit too
 // would let the ticks grow, but doubles each CG product (implicit bending was 35% of the frame,
 // springs 17%), so four ticks with explicit bending are cheaper. Block Jacobi to 1e-4 m/s, as the
 // benchmark's implicit settings: far below the step's own error.
@@ -80,7 +80,8 @@ class Curtain final : public BulletScene {
     // a real curtain rod. Without them the rings, pushed along by the folding cloth, slid off the rod's
     // end at frame 226.
     btCollisionShape* finial = m_world.keep(std::make_unique<btSphereShape>(btScalar(kFinialRadius)));
-    for (double end : {-kRodHalfLength, kRodHalfLength}) m_world.add_body(finial, 0.0, at(btVector3(btScalar(end), btScalar(rod_y), 0)))->setFriction(0.15);
+    for (double end : {-kRodHalfLength, kRodHalfLength})
+      m_world.add_body(finial, 0.0, at(btVector3(btScalar(end), btScalar(rod_y), 0)))->setFriction(0.15);
   }
   void before_frame(double t) override {
     // Drawn from x = 0.95 to -0.35 and back every 8 s (closing first).
