@@ -4,9 +4,9 @@
 #pragma once
 
 #include "curtain_bench.hpp"
+#include "fnv_hash.hpp"
 #include "scene.hpp"
 
-#include <cstring>
 #include <memory>
 
 namespace sinew::scenes {
@@ -31,18 +31,14 @@ class BenchScene final : public Scene {
   }
   /// FNV-1a over the node positions, the energy and the momentum along the rod (sinew-hashes'
   /// record of the benchmark's settings).
-  std::uint64_t state_hash() override {
-    std::uint64_t h = 1469598103934665603ull;
-    auto mix = [&h](const void* data, std::size_t bytes) {
-      const auto* c = static_cast<const unsigned char*>(data);
-      for (std::size_t i = 0; i < bytes; ++i) h = (h ^ c[i]) * 1099511628211ull;
-    };
-    const Vectors3 x = m_run->nodes();
-    mix(x.data(), sizeof(double) * static_cast<std::size_t>(x.size()));
-    const double energy = m_run->energy(), momentum = m_run->momentum_along_rod();
-    mix(&energy, sizeof energy);
-    mix(&momentum, sizeof momentum);
-    return h;
+  std::uint64_t state_hash() override { return hash(*m_run); }
+  static std::uint64_t hash(const bench::CurtainRun& run) {
+    FnvHash h;
+    const Vectors3 x = run.nodes();
+    h.mix(x.data(), sizeof(double) * static_cast<std::size_t>(x.size()));
+    h.mix(run.energy());
+    h.mix(run.momentum_along_rod());
+    return h.h;
   }
 
  private:

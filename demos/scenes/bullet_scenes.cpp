@@ -1,4 +1,5 @@
 #include "bullet_scenes.hpp"
+#include "fnv_hash.hpp"
 
 #include <BulletCollision/CollisionShapes/btShapeHull.h>
 
@@ -84,25 +85,18 @@ SceneMeasures BulletScene::measure() {
 }
 
 std::uint64_t BulletScene::state_hash() {
-  // FNV-1a over sinew's hash and each body's origin, velocities and basis (sinew-hashes' record).
-  std::uint64_t h = 1469598103934665603ull;
-  auto mix = [&h](const void* data, std::size_t bytes) {
-    const auto* c = static_cast<const unsigned char*>(data);
-    for (std::size_t i = 0; i < bytes; ++i) h = (h ^ c[i]) * 1099511628211ull;
-  };
-  auto mix_double = [&mix](double d) { mix(&d, sizeof d); };
-  const std::uint64_t s = system().state_hash();
-  mix(&s, sizeof s);
+  FnvHash h;
+  h.mix(system().state_hash());
   for (const btRigidBody* body : m_world.bodies()) {
     const btTransform& t = body->getWorldTransform();
     for (int i = 0; i < 3; ++i) {
-      mix_double(double(t.getOrigin()[i]));
-      mix_double(double(body->getLinearVelocity()[i]));
-      mix_double(double(body->getAngularVelocity()[i]));
-      for (int j = 0; j < 3; ++j) mix_double(double(t.getBasis()[i][j]));
+      h.mix(double(t.getOrigin()[i]));
+      h.mix(double(body->getLinearVelocity()[i]));
+      h.mix(double(body->getAngularVelocity()[i]));
+      for (int j = 0; j < 3; ++j) h.mix(double(t.getBasis()[i][j]));
     }
   }
-  return h;
+  return h.h;
 }
 
 double BulletScene::hard_binding_drift() {

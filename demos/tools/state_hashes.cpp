@@ -6,6 +6,7 @@
 // on the compiler and the C library's maths, so they are compared on one machine, not in CI.
 //
 //   sinew-hashes [--frames N]
+#include "bench_scene.hpp"
 #include "scene.hpp"
 #include "sinew_curtain.hpp"
 #include "stability.hpp"
@@ -19,25 +20,11 @@ namespace {
 
 using namespace sinew;
 
-struct Hash {
-  std::uint64_t h = 1469598103934665603ull;
-  void mix(const void* data, std::size_t bytes) {
-    const auto* c = static_cast<const unsigned char*>(data);
-    for (std::size_t i = 0; i < bytes; ++i) h = (h ^ c[i]) * 1099511628211ull;
-  }
-  void mix(double d) { mix(&d, sizeof d); }
-};
-
 void print(const std::string& name, std::uint64_t h) { std::printf("%-64s %016llx\n", name.c_str(), static_cast<unsigned long long>(h)); }
 
 std::uint64_t curtain_hash(bench::CurtainRun& run, int frames, double frame_dt, int ticks) {
   for (int f = 0; f < frames; ++f) run.advance(frame_dt, ticks);
-  Hash h;
-  const Vectors3 x = run.nodes();
-  h.mix(x.data(), sizeof(double) * x.size());
-  h.mix(run.energy());
-  h.mix(run.momentum_along_rod());
-  return h.h;
+  return scenes::BenchScene::hash(run);
 }
 
 }  // namespace
