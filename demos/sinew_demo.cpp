@@ -1,21 +1,18 @@
-// sinew-demo <scene>: runs one of the Bullet demo scenes headless and prints a one-line JSON summary.
-//
-//   sinew-demo curtain|net|plates|hello [--frames N] [--dt SECONDS] [--substeps N] [--out DIR]
-//              [--render DIR] [--video FILE] [--size WxH] [--no-springs] [--no-hard] [--no-soft] [--parents]
+// sinew-demo SCENE: runs a registered scene headless and prints a one-line JSON summary;
+// `sinew-demo --list` names the scenes. The flags are the shared command line's (common/cli.hpp).
 //
 // --out DIR writes DIR/frame_0001.obj, ... : the deformable surfaces and every rigid body's shape.
 // --render DIR writes DIR/frame_0001.png, ... : pictures rendered offscreen (OSMesa), with the binding
 // overlays (springs orange, hard-bound points red, soft-bound yellow, parents blue) the flags select.
 // --video FILE assembles the frames into an MP4 or, for a .gif name, a GIF with ffmpeg.
+// The files are for Bullet scenes (kind "bullet" in --list); the others are run and measured.
 #include "bullet_scenes.hpp"
+#include "cli.hpp"
 #include "renderer.hpp"
+#include "runner.hpp"
 #include "sinew/mesh/mesh_io.hpp"
 
-#include <algorithm>
-#include <chrono>
 #include <cstdio>
-#include <cstdlib>
-#include <cstring>
 #include <filesystem>
 #include <memory>
 #include <string>
@@ -24,122 +21,83 @@
 
 namespace {
 
-[[noreturn]] void usage(const char* problem) {
-  std::fprintf(stderr,
-               "sinew-demo: %s\nusage: sinew-demo curtain|net|plates|hello [--frames N] [--dt SECONDS] [--substeps N] [--out DIR]\n"
-               "                  [--render DIR] [--video FILE] [--size WxH] [--no-springs] [--no-hard] [--no-soft] [--parents]\n",
-               problem);
-  std::exit(2);
-}
+using namespace sinew;
+
+// The pictures and meshes a run writes (Bullet scenes only: the command line refuses the rest).
+struct Files {
+  const demos::Options& o;
+  std::filesystem::path frames_dir;
+  bool temporary_frames = false;
+  std::unique_ptr<render::Offscreen> offscreen;
+  render::Camera camera;
+  render::Overlays overlays;
+
+  explicit Files(const demos::Options& options) : o(options), frames_dir(options.render) {
+    overlays.binding_springs = o.springs;
+    overlays.hard_bound = o.hard_bound;
+    overlays.soft_bound = o.soft_bound;
+    overlays.parents = o.parents;
+    // Frames go to --render's directory, or to a temporary one that only --video needs.
+    temporary_frames = o.render.empty() && !o.video.empty();
+    if (temporary_frames) frames_dir = std::filesystem::temp_directory_path() / ("sinew-demo-frames-" + std::to_string(::getpid()));
+  }
+  ~Files() {  // the temporary folder goes however the run ends
+    std::error_code ignored;
+    if (temporary_frames) std::filesystem::remove_all(frames_dir, ignored);
+  }
+
+  void before(scenes::Scene& scene) {
+    if (frames_dir.empty()) return;
+    if (std::filesystem::exists(frames_dir) && !std::filesystem::is_directory(frames_dir))
+      fail("--render: '", frames_dir.string(), "' exists and is not a folder");
+    std::filesystem::create_directories(frames_dir);
+    offscreen = std::make_unique<render::Offscreen>(o.width, o.height);
+    camera = render::framing_camera(render::picture_of(bullet(scene), overlays), double(o.width) / o.height);
+  }
+
+  void after_frame(scenes::Scene& scene, int frame) {
+    char file[64];
+    if (!o.out.empty()) {
+      std::filesystem::create_directories(o.out);
+      std::snprintf(file, sizeof file, "frame_%04d.obj", frame);
+      std::vector<mesh::TriangleMesh> meshes;
+      std::vector<std::string> names;
+      for (auto& surface : bullet(scene).surfaces()) {
+        meshes.push_back({std::move(surface.vertices), std::move(surface.triangles)});
+        names.push_back(surface.name);
+      }
+      mesh::save_triangle_meshes((std::filesystem::path(o.out) / file).string(), meshes, names);
+    }
+    if (offscreen) {
+      const render::Picture picture = render::picture_of(bullet(scene), overlays);
+      render::follow(camera, picture);
+      render::draw(picture, camera, o.width, o.height);
+      std::snprintf(file, sizeof file, "frame_%04d.png", frame);
+      render::write_png((frames_dir / file).string(), o.width, o.height, offscreen->pixels());
+    }
+  }
+
+  void after(int frames, double frame_dt) const {
+    if (!o.video.empty()) render::encode_video(frames_dir.string(), frames, 1.0 / frame_dt, o.video);
+  }
+
+  static scenes::BulletScene& bullet(scenes::Scene& scene) { return dynamic_cast<scenes::BulletScene&>(scene); }
+};
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc < 2) usage("which scene?");
-  const std::string scene_name = argv[1];
-  int frames = 240, substeps = 0;  // 0: the scene's own
-  double dt = 1.0 / 60.0;
-  std::string out, render_dir, video;
-  int width = 960, height = 540;
-  sinew::render::Overlays overlays;
-  for (int i = 2; i < argc; ++i) {
-    auto value = [&]() -> const char* {
-      if (i + 1 >= argc) usage("a flag needs a value");
-      return argv[++i];
-    };
-    if (!std::strcmp(argv[i], "--frames")) frames = std::atoi(value());
-    else if (!std::strcmp(argv[i], "--dt")) dt = std::atof(value());
-    else if (!std::strcmp(argv[i], "--substeps")) substeps = std::atoi(value());
-    else if (!std::strcmp(argv[i], "--out")) out = value();
-    else if (!std::strcmp(argv[i], "--render")) render_dir = value();
-    else if (!std::strcmp(argv[i], "--video")) video = value();
-    else if (!std::strcmp(argv[i], "--size")) {
-      if (std::sscanf(value(), "%dx%d", &width, &height) != 2 || width < 16 || height < 16 || width > 8192 || height > 8192)
-        usage("--size takes WxH, each 16 to 8192 pixels");
-    }
-    else if (!std::strcmp(argv[i], "--no-springs")) overlays.binding_springs = false;
-    else if (!std::strcmp(argv[i], "--no-hard")) overlays.hard_bound = false;
-    else if (!std::strcmp(argv[i], "--no-soft")) overlays.soft_bound = false;
-    else if (!std::strcmp(argv[i], "--parents")) overlays.parents = true;
-    else usage("unknown flag");
+  const demos::Program program{.name = "sinew-demo",
+                               .flags = demos::kFrames | demos::kDt | demos::kSubsteps | demos::kGrid | demos::kFiles | demos::kSize |
+                                        demos::kOverlays,
+                               .kinds = {scenes::SceneKind::bullet, scenes::SceneKind::core, scenes::SceneKind::bench}};
+  const demos::Options options = demos::parse_command_line(program, argc, argv);
+  Files files(options);
+  demos::RunHooks hooks;
+  if (!options.out.empty() || !files.frames_dir.empty()) {
+    hooks.before = [&](scenes::Scene& s) { files.before(s); };
+    hooks.after_frame = [&](scenes::Scene& s, int frame) { files.after_frame(s, frame); };
+    hooks.after = [&](scenes::Scene&, int frames, double frame_dt) { files.after(frames, frame_dt); };
   }
-  if (frames < 1 || substeps < 0 || !(dt > 0)) usage("--frames, --substeps and --dt must be positive");
-  try {
-    auto scene = sinew::scenes::make_bullet_scene(scene_name);
-    if (substeps == 0) substeps = scene->default_substeps();
-    double drift = 0.0, stretch = 0.0, penetration = 0.0, wall_ms = 0.0, energy_start = 0.0;
-    bool first = true;
-    // Pictures: frames go to --render's directory, or to a temporary one that only --video needs.
-    std::filesystem::path frames_dir = render_dir;
-    const bool temporary_frames = render_dir.empty() && !video.empty();
-    if (temporary_frames)
-      frames_dir = std::filesystem::temp_directory_path() / ("sinew-demo-frames-" + std::to_string(::getpid()));
-    // The temporary folder goes however the run ends.
-    struct RemoveOnExit {
-      std::filesystem::path path;
-      ~RemoveOnExit() {
-        std::error_code ignored;
-        if (!path.empty()) std::filesystem::remove_all(path, ignored);
-      }
-    } remove_frames{temporary_frames ? frames_dir : std::filesystem::path()};
-    if (!frames_dir.empty() && std::filesystem::exists(frames_dir) && !std::filesystem::is_directory(frames_dir))
-      sinew::fail("--render: '", frames_dir.string(), "' exists and is not a folder");
-    std::unique_ptr<sinew::render::Offscreen> offscreen;
-    sinew::render::Camera camera;
-    if (!frames_dir.empty()) {
-      std::filesystem::create_directories(frames_dir);
-      offscreen = std::make_unique<sinew::render::Offscreen>(width, height);
-      camera = sinew::render::framing_camera(sinew::render::picture_of(*scene, overlays), double(width) / height);
-    }
-    for (int f = 0; f < frames; ++f) {
-      const auto start = std::chrono::steady_clock::now();
-      scene->advance(dt, substeps);
-      wall_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-      if (first) {
-        energy_start = scene->total_energy();  // after the first frame: masses are set up there
-        first = false;
-      }
-      drift = std::max(drift, scene->hard_binding_drift());
-      stretch = std::max(stretch, scene->system().binding_springs().max_stretch(scene->system().particles().x));
-      penetration = std::max(penetration, scene->coupling().deepest_penetration());
-      if (!out.empty()) {
-        std::filesystem::create_directories(out);
-        char file[64];
-        std::snprintf(file, sizeof file, "frame_%04d.obj", f + 1);
-        std::vector<sinew::mesh::TriangleMesh> meshes;
-        std::vector<std::string> names;
-        for (auto& surface : scene->surfaces()) {
-          meshes.push_back({std::move(surface.vertices), std::move(surface.triangles)});
-          names.push_back(surface.name);
-        }
-        sinew::mesh::save_triangle_meshes((std::filesystem::path(out) / file).string(), meshes, names);
-      }
-      if (offscreen) {
-        const sinew::render::Picture picture = sinew::render::picture_of(*scene, overlays);
-        sinew::render::follow(camera, picture);
-        sinew::render::draw(picture, camera, width, height);
-        char file[64];
-        std::snprintf(file, sizeof file, "frame_%04d.png", f + 1);
-        sinew::render::write_png((frames_dir / file).string(), width, height, offscreen->pixels());
-      }
-    }
-    if (!video.empty()) {
-      sinew::render::encode_video(frames_dir.string(), frames, 1.0 / dt, video);
-    }
-    const double energy_end = scene->total_energy();
-    std::printf(
-        "{\"scene\": \"%s\", \"particles\": %lld, \"rigid_bodies\": %zu, \"frames\": %d, \"wall_ms_per_frame\": %.3f, "
-        "\"max_hard_binding_drift\": %.3g, \"max_binding_spring_stretch\": %.3g, \"deepest_penetration\": %.3g, "
-        "\"energy_start\": %.6g, \"energy_end\": %.6g, \"finite\": true}\n",
-        scene_name.c_str(), static_cast<long long>(scene->system().particles().size()), scene->bullet().bodies().size(), frames,
-        wall_ms / frames, drift, stretch, penetration, energy_start, energy_end);
-  } catch (const sinew::Error& e) {
-    std::printf("{\"scene\": \"%s\", \"finite\": false, \"error\": \"%s\"}\n", scene_name.c_str(), e.what());
-    std::fprintf(stderr, "sinew-demo: %s\n", e.what());
-    return 1;
-  } catch (const std::exception& e) {  // files: a folder that cannot be made, a disk that is full
-    std::fprintf(stderr, "sinew-demo: %s\n", e.what());
-    return 1;
-  }
-  return 0;
+  return demos::run_headless(program, options, hooks);
 }

@@ -1,12 +1,14 @@
-// sinew-view <scene>: the demo scenes in a window, drawn by the same renderer as sinew-demo --render.
-//
-//   sinew-view curtain|net|plates|hello [--size WxH] [--substeps N] [--frames N --screenshot FILE]
+// sinew-view SCENE: a registered Bullet scene in a window, drawn by the same renderer as sinew-demo
+// --render; `sinew-view --list` names the scenes. The flags are the shared command line's
+// (common/cli.hpp): --size, --dt/--fps, --substeps, the overlay flags, --frames N --screenshot FILE.
 //
 // Mouse: left-drag on the cloth grabs the nearest point (a binding spring to the cursor, released on
 // mouse-up), left-drag elsewhere orbits, right-drag pans, the wheel zooms. Keys: space pauses, S steps
 // one frame, R resets. The HUD shows the step's timings, CG iterations and the bindings' drift.
 // --screenshot runs N frames, writes the window's picture as a PNG and exits (CI runs it under Xvfb).
+#include "cli.hpp"
 #include "renderer.hpp"
+#include "runner.hpp"
 
 #include <GLFW/glfw3.h>
 #include <imgui.h>
@@ -23,12 +25,6 @@
 namespace {
 
 using namespace sinew;
-
-[[noreturn]] void usage(const char* problem) {
-  std::fprintf(stderr, "sinew-view: %s\nusage: sinew-view curtain|net|plates|hello [--size WxH] [--substeps N] [--frames N --screenshot FILE]\n",
-               problem);
-  std::exit(2);
-}
 
 // The scene and the viewer's mouse spring: a kinematic cursor particle tied to whatever point is
 // grabbed by an implicit binding spring, switched off while nothing is held.
@@ -53,33 +49,21 @@ struct Session {
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc < 2) usage("which scene?");
-  const std::string scene_name = argv[1];
-  int width = 1280, height = 720, substeps = 0, frames = 0;
-  std::string screenshot;
-  for (int i = 2; i < argc; ++i) {
-    auto value = [&]() -> const char* {
-      if (i + 1 >= argc) usage("a flag needs a value");
-      return argv[++i];
-    };
-    if (!std::strcmp(argv[i], "--size")) {
-      if (std::sscanf(value(), "%dx%d", &width, &height) != 2 || width < 64 || height < 64) usage("--size takes WxH, each at least 64");
-    } else if (!std::strcmp(argv[i], "--substeps")) {
-      substeps = std::atoi(value());
-    } else if (!std::strcmp(argv[i], "--frames")) {
-      frames = std::atoi(value());
-    } else if (!std::strcmp(argv[i], "--screenshot")) {
-      screenshot = value();
-    } else {
-      usage("unknown flag");
-    }
-  }
-  if (!screenshot.empty() && frames < 1) usage("--screenshot needs --frames N (at least 1)");
-  if (substeps < 0) usage("--substeps must be positive");
+  const demos::Program program{.name = "sinew-view",
+                               .flags = demos::kFrames | demos::kDt | demos::kSubsteps | demos::kSize | demos::kScreenshot | demos::kOverlays,
+                               .kinds = {scenes::SceneKind::bullet},
+                               .default_frames = 0,
+                               .default_width = 1280,
+                               .default_height = 720};
+  const demos::Options options = demos::parse_command_line(program, argc, argv);
+  const std::string& scene_name = options.scene;
+  const std::string& screenshot = options.screenshot;
+  const int width = options.width, height = options.height, frames = options.frames;
 
   try {
     auto session = std::make_unique<Session>(scene_name);
-    if (substeps == 0) substeps = session->scene->default_substeps();
+    const demos::Timing timing = demos::timing(options, *session->scene);
+    const int substeps = timing.substeps;
 
     if (!glfwInit()) fail("sinew-view: GLFW could not start (no display? run it under xvfb-run)");
     if (!screenshot.empty()) glfwWindowHint(GLFW_VISIBLE, GLFW_FALSE);
@@ -97,9 +81,13 @@ int main(int argc, char** argv) {
     ImGui_ImplOpenGL2_Init();
 
     render::Overlays overlays;
+    overlays.binding_springs = options.springs;
+    overlays.hard_bound = options.hard_bound;
+    overlays.soft_bound = options.soft_bound;
+    overlays.parents = options.parents;
     render::Camera camera = render::framing_camera(render::picture_of(*session->scene, overlays), double(width) / height);
     bool paused = false, step_once = false, follow = true;
-    const double frame_dt = 1.0 / 60.0;
+    const double frame_dt = timing.frame_dt;
     int frame = 0;
     double frame_ms = 0.0;
 

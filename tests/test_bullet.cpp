@@ -1,5 +1,5 @@
 // The Bullet plugin's exchange (Sifakis et al. 2007, section 5): copy state in, momentum out.
-#include "cloth.hpp"
+#include "bullet_scenes.hpp"
 #include "sinew/bullet/collisions.hpp"
 #include "sinew/bullet/coupling.hpp"
 
@@ -14,33 +14,15 @@
 namespace sinew {
 namespace {
 
-// A plain Bullet world, as an application would set it up.
-struct BulletWorld {
-  btDefaultCollisionConfiguration configuration;
-  btCollisionDispatcher dispatcher{&configuration};
-  btDbvtBroadphase broadphase;
-  btSequentialImpulseConstraintSolver solver;
-  btDiscreteDynamicsWorld world{&dispatcher, &broadphase, &solver, &configuration};
-  std::vector<std::unique_ptr<btCollisionShape>> shapes;
-  std::vector<std::unique_ptr<btDefaultMotionState>> states;
-  std::vector<std::unique_ptr<btRigidBody>> bodies;
+// A plain Bullet world, as an application would set it up: the scenes' own (demos/scenes/bullet_scenes.hpp).
+using scenes::BulletWorld;
 
-  explicit BulletWorld(const btVector3& gravity) { world.setGravity(gravity); }
-  ~BulletWorld() {
-    for (auto& b : bodies) world.removeRigidBody(b.get());
-  }
-  btRigidBody* add_box(const btVector3& half, double mass, const btTransform& at) {
-    shapes.push_back(std::make_unique<btBoxShape>(half));
-    btVector3 inertia(0, 0, 0);
-    if (mass > 0) shapes.back()->calculateLocalInertia(btScalar(mass), inertia);
-    states.push_back(std::make_unique<btDefaultMotionState>(at));
-    bodies.push_back(std::make_unique<btRigidBody>(
-        btRigidBody::btRigidBodyConstructionInfo(btScalar(mass), states.back().get(), shapes.back().get(), inertia)));
-    bodies.back()->setActivationState(DISABLE_DEACTIVATION);
-    world.addRigidBody(bodies.back().get());
-    return bodies.back().get();
-  }
-};
+// A box body kept awake (the exchange is tested on bodies Bullet would otherwise put to sleep).
+btRigidBody* add_box(BulletWorld& w, const btVector3& half, double mass, const btTransform& at) {
+  btRigidBody* body = w.add_body(w.keep(std::make_unique<btBoxShape>(half)), mass, at);
+  body->setActivationState(DISABLE_DEACTIVATION);
+  return body;
+}
 
 scenes::ClothGridSettings small_cloth(const Vec3& origin) {
   scenes::ClothGridSettings c;
@@ -60,20 +42,20 @@ void app_pre_tick(btDynamicsWorld* world, btScalar) {
 
 TEST(BulletCoupling, RunsEveryInternalTickAndChainsTheApplicationsCallback) {
   BulletWorld bw(btVector3(0, -9.81, 0));
-  bw.world.setInternalTickCallback(app_pre_tick, &g_app_ticks, true);
+  bw.world().setInternalTickCallback(app_pre_tick, &g_app_ticks, true);
   g_app_ticks = 0;
   {
-    bullet::Coupling coupling(&bw.world);
+    bullet::Coupling coupling(&bw.world());
     scenes::add_cloth_grid(coupling.system(), small_cloth(Vec3(0, 1, 0)));
     const Vec3 start = coupling.system().particles().x.col(0);
-    bw.world.stepSimulation(btScalar(1.0 / 60), 10, btScalar(1.0 / 240));  // four internal ticks
+    bw.world().stepSimulation(btScalar(1.0 / 60), 10, btScalar(1.0 / 240));  // four internal ticks
     EXPECT_EQ(g_app_ticks, 4);
-    EXPECT_EQ(bw.world.getWorldUserInfo(), &g_app_ticks);
+    EXPECT_EQ(bw.world().getWorldUserInfo(), &g_app_ticks);
     EXPECT_NEAR(coupling.last_stats().dt, 1.0 / 240, 1e-15);
     // Free fall of the whole cloth for 1/60 s at the world's gravity, through four coupled ticks.
     EXPECT_NEAR(coupling.system().particles().x(1, 0) - start.y(), -0.5 * 9.81 / 3600.0, 1e-12);
   }
-  bw.world.stepSimulation(btScalar(1.0 / 60), 10, btScalar(1.0 / 240));  // detached: only the app runs
+  bw.world().stepSimulation(btScalar(1.0 / 60), 10, btScalar(1.0 / 240));  // detached: only the app runs
   EXPECT_EQ(g_app_ticks, 8);
 }
 
@@ -85,10 +67,10 @@ TEST(BulletCoupling, IsolatedCoupledSystemConservesLinearMomentumThroughTheExcha
   btTransform at;
   at.setIdentity();
   at.setOrigin(btVector3(0, 0.5, 0));
-  btRigidBody* box = bw.add_box(btVector3(0.3, 0.05, 0.2), 1.0, at);
+  btRigidBody* box = add_box(bw, btVector3(0.3, 0.05, 0.2), 1.0, at);
   box->setLinearVelocity(btVector3(0.2, 0.1, 0));
   box->setAngularVelocity(btVector3(0, 2.0, 0.5));
-  bullet::Coupling coupling(&bw.world);
+  bullet::Coupling coupling(&bw.world());
   System& s = coupling.system();
   const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, small_cloth(Vec3(-0.25, 0.45, 0)));
   for (int i = 0; i < 3; ++i) coupling.bind_here(cloth.node(i, 0), box);
@@ -104,11 +86,11 @@ TEST(BulletCoupling, IsolatedCoupledSystemConservesLinearMomentumThroughTheExcha
     const btVector3 v = box->getLinearVelocity();
     return Vec3(cloth_p + (1.0 / box->getInvMass()) * Vec3(v.x(), v.y(), v.z()));
   };
-  bw.world.stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+  bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
   const Vec3 p0 = total_momentum();
   double worst = 0.0;
   for (int frame = 0; frame < 120; ++frame) {
-    bw.world.stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+    bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
     worst = std::max(worst, (total_momentum() - p0).norm());
   }
   EXPECT_LT(worst, 1e-10);
@@ -131,8 +113,8 @@ TEST(BulletCoupling, GravityIsNotAppliedTwice) {
   btTransform at;
   at.setIdentity();
   at.setOrigin(btVector3(0, 1.0, 0));
-  btRigidBody* box = bw.add_box(btVector3(0.3, 0.05, 0.05), 2.0, at);
-  bullet::Coupling coupling(&bw.world);
+  btRigidBody* box = add_box(bw, btVector3(0.3, 0.05, 0.05), 2.0, at);
+  bullet::Coupling coupling(&bw.world());
   System& s = coupling.system();
   const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, small_cloth(Vec3(-0.25, 0.95, 0)));
   for (int i = 0; i < 6; ++i) {
@@ -142,7 +124,7 @@ TEST(BulletCoupling, GravityIsNotAppliedTwice) {
   }
   s.step_settings().cg_tolerance = 1e-13;
   const int ticks = 120;
-  for (int i = 0; i < ticks; ++i) bw.world.stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+  for (int i = 0; i < ticks; ++i) bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
   const double t = ticks / 240.0;
   const double cloth_mass = 0.2, box_mass = 2.0;
   const Vec3 cloth_p = s.linear_momentum() - box_mass * Vec3(s.rigid_bodies().v.col(0));
@@ -156,11 +138,11 @@ TEST(BulletCoupling, ClothOnFastSpinningBodyStaysAttached) {
   BulletWorld bw(btVector3(0, 0, 0));
   btTransform at;
   at.setIdentity();
-  btRigidBody* hub = bw.add_box(btVector3(0.1, 0.1, 0.1), 2.0, at);
+  btRigidBody* hub = add_box(bw, btVector3(0.1, 0.1, 0.1), 2.0, at);
   hub->setAngularVelocity(btVector3(0, 50, 0));
   bullet::CouplingSettings settings;
   settings.collisions = false;  // the cloth starts inside the hub's collision margin; not the point here
-  bullet::Coupling coupling(&bw.world, settings);
+  bullet::Coupling coupling(&bw.world(), settings);
   System& s = coupling.system();
   scenes::ClothGridSettings c = small_cloth(Vec3(0.0, 0.05, -0.25));
   c.across = Vec3::UnitZ();
@@ -179,7 +161,7 @@ TEST(BulletCoupling, ClothOnFastSpinningBodyStaysAttached) {
   }
   double stretch = 0.0, drift = 0.0;
   for (int tick = 0; tick < 240; ++tick) {
-    bw.world.stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+    bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
     stretch = std::max(stretch, s.binding_springs().max_stretch(s.particles().x));
     drift = std::max(drift, s.max_hard_binding_drift());
   }
@@ -203,16 +185,16 @@ TEST(BulletCoupling, ClothFollowsStaticAndKinematicParentsExactly) {
   btTransform at;
   at.setIdentity();
   at.setOrigin(btVector3(0, 1.0, 0));
-  btRigidBody* rod = bw.add_box(btVector3(0.4, 0.02, 0.02), 0.0, at);
+  btRigidBody* rod = add_box(bw, btVector3(0.4, 0.02, 0.02), 0.0, at);
   rod->setCollisionFlags(rod->getCollisionFlags() | btCollisionObject::CF_KINEMATIC_OBJECT);
-  bullet::Coupling coupling(&bw.world);
+  bullet::Coupling coupling(&bw.world());
   System& s = coupling.system();
   const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, small_cloth(Vec3(-0.25, 0.98, 0)));
   for (int i = 0; i < 6; ++i) coupling.bind_here(cloth.node(i, 0), rod);
   btTransform pin_at;
   pin_at.setIdentity();
   pin_at.setOrigin(btVector3(0.5, 0.5, 0));
-  btRigidBody* pin = bw.add_box(btVector3(0.02, 0.02, 0.02), 0.0, pin_at);  // static
+  btRigidBody* pin = add_box(bw, btVector3(0.02, 0.02, 0.02), 0.0, pin_at);  // static
   const Index corner = cloth.node(5, 5);
   const Vec3 pinned = s.particles().x.col(corner);
   coupling.bind_here(corner, pin);
@@ -223,7 +205,7 @@ TEST(BulletCoupling, ClothFollowsStaticAndKinematicParentsExactly) {
     next.setOrigin(btVector3(btScalar(0.3 * std::sin(0.1 * (frame + 1))), 1.0, 0));
     next.setRotation(btQuaternion(btVector3(0, 1, 0), btScalar(0.05 * (frame + 1))));
     rod->getMotionState()->setWorldTransform(next);
-    bw.world.stepSimulation(btScalar(1.0 / 60), 8, btScalar(1.0 / 240));
+    bw.world().stepSimulation(btScalar(1.0 / 60), 8, btScalar(1.0 / 240));
   }
   const btTransform& frame = rod->getCenterOfMassTransform();
   for (Index k = 0; k < s.hard_bindings().rigid_count(); ++k) {
@@ -245,8 +227,8 @@ TEST(BulletCoupling, PointInsideATriangleHangsTheClothByABindingSpring) {
   btTransform at;
   at.setIdentity();
   at.setOrigin(btVector3(0, 1.2, 0));
-  btRigidBody* hook = bw.add_box(btVector3(0.02, 0.02, 0.02), 0.0, at);  // static
-  bullet::Coupling coupling(&bw.world);
+  btRigidBody* hook = add_box(bw, btVector3(0.02, 0.02, 0.02), 0.0, at);  // static
+  bullet::Coupling coupling(&bw.world());
   System& s = coupling.system();
   scenes::ClothGridSettings c = small_cloth(Vec3(-0.25, 1.0, 0));
   c.stretch_damping = 0.5;
@@ -259,7 +241,7 @@ TEST(BulletCoupling, PointInsideATriangleHangsTheClothByABindingSpring) {
   const double k = 2e4;
   const Index spring = coupling.attach(point, hook, start - Vec3(0, 1.2, 0), k);
   EXPECT_THROW(s.add_embedded_point(parents, std::array<double, 3>{0.4, 0.4, 0.3}), Error);  // sums to 1.1
-  for (int frame = 0; frame < 240; ++frame) bw.world.stepSimulation(btScalar(1.0 / 60), 8, btScalar(1.0 / 240));
+  for (int frame = 0; frame < 240; ++frame) bw.world().stepSimulation(btScalar(1.0 / 60), 8, btScalar(1.0 / 240));
   const double weight = c.mass * 9.81;
   const Vec3 force = s.binding_spring_force(spring);  // on the cloth's point
   EXPECT_NEAR(force.y(), weight, 0.01 * weight);
@@ -278,8 +260,8 @@ TEST(BulletCoupling, RemovingBindingsAtRunTimeReleasesTheCloth) {
   btTransform at;
   at.setIdentity();
   at.setOrigin(btVector3(0, 1.05, 0));  // clear of the cloth by more than the collision thickness
-  btRigidBody* rod = bw.add_box(btVector3(0.4, 0.01, 0.01), 0.0, at);
-  bullet::Coupling coupling(&bw.world);
+  btRigidBody* rod = add_box(bw, btVector3(0.4, 0.01, 0.01), 0.0, at);
+  bullet::Coupling coupling(&bw.world());
   System& s = coupling.system();
   const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, small_cloth(Vec3(-0.25, 1.0, 0)));
   for (int i = 0; i < 6; ++i) coupling.bind_here(cloth.node(i, 0), rod);
@@ -293,13 +275,13 @@ TEST(BulletCoupling, RemovingBindingsAtRunTimeReleasesTheCloth) {
     }
     return std::pair<Vec3, Vec3>(mx / m, mv / m);
   };
-  for (int frame = 0; frame < 30; ++frame) bw.world.stepSimulation(btScalar(1.0 / 60), 8, btScalar(1.0 / 240));
+  for (int frame = 0; frame < 30; ++frame) bw.world().stepSimulation(btScalar(1.0 / 60), 8, btScalar(1.0 / 240));
   EXPECT_GT(s.particles().x.row(1).minCoeff(), 0.3);  // held
   for (int i = 0; i < 6; ++i) EXPECT_TRUE(s.unbind(cloth.node(i, 0)));
   s.set_binding_spring_active(spring, false);
   const auto [x0, v0] = centre();
   const int frames = 30;
-  for (int frame = 0; frame < frames; ++frame) bw.world.stepSimulation(btScalar(1.0 / 60), 8, btScalar(1.0 / 240));
+  for (int frame = 0; frame < frames; ++frame) bw.world().stepSimulation(btScalar(1.0 / 60), 8, btScalar(1.0 / 240));
   const double t = frames / 60.0;
   const auto [x1, v1] = centre();
   EXPECT_NEAR(x1.y(), x0.y() + v0.y() * t - 0.5 * 9.81 * t * t, 1e-8);
@@ -373,17 +355,18 @@ std::unique_ptr<btCollisionShape> make_shape(const std::string& kind, btTransfor
 }
 
 TEST_P(ClothOnShape, RestsOnItWithoutPenetrating) {
+  std::vector<std::unique_ptr<btCollisionShape>> parts;  // a compound's children, outliving the world
   BulletWorld bw(btVector3(0, -9.81, 0));
   btTransform at;
   std::unique_ptr<btTriangleMesh> mesh;
-  std::unique_ptr<btCollisionShape> shape = make_shape(GetParam(), at, bw.shapes, mesh);
+  std::unique_ptr<btCollisionShape> shape = make_shape(GetParam(), at, parts, mesh);
   btRigidBody ground(btRigidBody::btRigidBodyConstructionInfo(0, nullptr, shape.get()));
   ground.setWorldTransform(at);
-  bw.world.addRigidBody(&ground);
+  bw.world().addRigidBody(&ground);
   {
     bullet::CouplingSettings settings;
     settings.thickness = 0.01;
-    bullet::Coupling coupling(&bw.world, settings);
+    bullet::Coupling coupling(&bw.world(), settings);
     System& s = coupling.system();
     scenes::ClothGridSettings c;
     c.nx = c.ny = 9;
@@ -398,7 +381,7 @@ TEST_P(ClothOnShape, RestsOnItWithoutPenetrating) {
     scenes::add_cloth_grid(s, c);
     double lowest = kInfinity;
     for (int tick = 0; tick < 360; ++tick) {
-      bw.world.stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+      bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
       for (Index i = 0; i < s.particles().size(); ++i) {
         double phi;
         Vec3 n;
@@ -415,7 +398,7 @@ TEST_P(ClothOnShape, RestsOnItWithoutPenetrating) {
     EXPECT_GT(centre.y(), -0.01) << GetParam();
     EXPECT_TRUE(s.particles().x.allFinite());
   }
-  bw.world.removeRigidBody(&ground);
+  bw.world().removeRigidBody(&ground);
 }
 
 INSTANTIATE_TEST_SUITE_P(EveryShape, ClothOnShape,
@@ -465,14 +448,14 @@ TEST(BulletCoupling, FastClothDoesNotTunnelThroughAThinPlate) {
   btTransform at;
   at.setIdentity();
   at.setOrigin(btVector3(0, 0.5, 0));
-  bw.add_box(btVector3(0.6, 0.005, 0.6), 0.0, at);
-  bullet::Coupling coupling(&bw.world);
+  add_box(bw, btVector3(0.6, 0.005, 0.6), 0.0, at);
+  bullet::Coupling coupling(&bw.world());
   System& s = coupling.system();
   scenes::ClothGridSettings c = small_cloth(Vec3(-0.25, 0.8, -0.25));
   c.down = Vec3::UnitZ();
   const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
   for (Index n : cloth.nodes) s.particles().v.col(n) = Vec3(0, -5, 0);
-  for (int tick = 0; tick < 120; ++tick) bw.world.stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+  for (int tick = 0; tick < 120; ++tick) bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
   EXPECT_GT(s.particles().x.row(1).minCoeff(), 0.5 + 0.005);  // every particle is still above the plate
 }
 
@@ -485,14 +468,14 @@ TEST(BulletCoupling, AStiffSpringOnAFreeFallingBodyFallsWithIt) {
   BulletWorld bw(btVector3(0, -9.81, 0));
   btTransform at;
   at.setIdentity();
-  btRigidBody* box = bw.add_box(btVector3(0.04, 0.04, 0.04), 0.05, at);
+  btRigidBody* box = add_box(bw, btVector3(0.04, 0.04, 0.04), 0.05, at);
   bullet::CouplingSettings settings;
   settings.collisions = false;  // the node sits inside the box
-  bullet::Coupling coupling(&bw.world, settings);
+  bullet::Coupling coupling(&bw.world(), settings);
   System& s = coupling.system();
   const Index node = s.add_particle(Vec3::Zero(), Vec3::Zero(), 3e-4);
   coupling.attach(node, box, Vec3::Zero(), 1e10);
-  for (int i = 0; i < 240; ++i) bw.world.stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+  for (int i = 0; i < 240; ++i) bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
   const double fall = -0.5 * 9.81 * 1.0;
   EXPECT_NEAR(box->getCenterOfMassPosition().y(), fall, 1e-9);
   EXPECT_NEAR(s.particles().x(1, node), fall, 1e-9);
@@ -506,34 +489,34 @@ TEST(BulletCoupling, AStiffSpringOnAFreeFallingBodyFallsWithIt) {
 // node, which a stiff spring turns into an energy blow-up.
 void run_node_on_a_slider_ring(double node_mass, double k, double& stretch, double& off_rod, double& along_rod, double global_cfm = 0.0) {
   BulletWorld bw(btVector3(0, -9.81, 0));
-  bw.world.getSolverInfo().m_globalCfm = btScalar(global_cfm);
+  bw.world().getSolverInfo().m_globalCfm = btScalar(global_cfm);
   btTransform at;
   at.setIdentity();
-  btRigidBody* rod = bw.add_box(btVector3(1.0, 0.01, 0.01), 0.0, at);
-  btRigidBody* ring = bw.add_box(btVector3(0.04, 0.04, 0.04), 0.05, at);
+  btRigidBody* rod = add_box(bw, btVector3(1.0, 0.01, 0.01), 0.0, at);
+  btRigidBody* ring = add_box(bw, btVector3(0.04, 0.04, 0.04), 0.05, at);
   ring->setLinearVelocity(btVector3(0.3, 0, 0));
   btSliderConstraint slider(*rod, *ring, btTransform::getIdentity(), btTransform::getIdentity(), true);
   slider.setLowerLinLimit(1);  // lower > upper: free along and about the rod
   slider.setUpperLinLimit(-1);
   slider.setLowerAngLimit(1);
   slider.setUpperAngLimit(-1);
-  bw.world.addConstraint(&slider, true);
+  bw.world().addConstraint(&slider, true);
   bullet::CouplingSettings settings;
   settings.collisions = false;  // the node hangs inside the ring's box
-  bullet::Coupling coupling(&bw.world, settings);
+  bullet::Coupling coupling(&bw.world(), settings);
   System& s = coupling.system();
   const Vec3 lever(0, -0.04, 0);
   const Index node = s.add_particle(lever, Vec3(0.3, 0, 0.5), node_mass);
   const Index spring = coupling.attach(node, ring, lever, k);
   stretch = off_rod = 0.0;
   for (int frame = 0; frame < 120; ++frame) {
-    bw.world.stepSimulation(btScalar(1.0 / 60), 1, btScalar(1.0 / 60));
+    bw.world().stepSimulation(btScalar(1.0 / 60), 1, btScalar(1.0 / 60));
     stretch = std::max(stretch, s.binding_spring_force(spring).norm() / k);
     const btVector3 c = ring->getCenterOfMassPosition();
     off_rod = std::max(off_rod, std::hypot(double(c.y()), double(c.z())));
   }
   along_rod = ring->getLinearVelocity().x();
-  bw.world.removeConstraint(&slider);
+  bw.world().removeConstraint(&slider);
 }
 
 TEST(BulletCoupling, AStiffSpringOnASliderRingHoldsWithTheSlider) {
@@ -563,8 +546,8 @@ TEST(BulletCoupling, ClothHittingADynamicBodyConservesMomentumOnEitherPath) {
     btTransform at;
     at.setIdentity();
     at.setOrigin(btVector3(0, 0, 0));
-    btRigidBody* box = bw.add_box(btVector3(0.5, 0.05, 0.5), 0.5, at);
-    bullet::Coupling coupling(&bw.world);
+    btRigidBody* box = add_box(bw, btVector3(0.5, 0.05, 0.5), 0.5, at);
+    bullet::Coupling coupling(&bw.world());
     System& s = coupling.system();
     if (coupled) coupling.rigid_particle(box);
     scenes::ClothGridSettings c = small_cloth(Vec3(-0.25, 0.2, -0.25));
@@ -582,7 +565,7 @@ TEST(BulletCoupling, ClothHittingADynamicBodyConservesMomentumOnEitherPath) {
     const Vec3 p0 = total_momentum();
     double worst = 0.0;
     for (int frame = 0; frame < 30; ++frame) {
-      bw.world.stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+      bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
       worst = std::max(worst, (total_momentum() - p0).norm());
     }
     const std::string path = coupled ? "coupled" : "uncoupled";
@@ -601,8 +584,9 @@ TEST(BulletCoupling, CollisionFiltersFollowBulletsGroupsAndMasks) {
     btTransform at;
     at.setIdentity();
     at.setOrigin(btVector3(0, -0.05, 0));
-    bw.add_box(btVector3(2, 0.05, 2), 0.0, at);  // static: Bullet puts it in StaticFilter
-    bullet::Coupling coupling(&bw.world);
+    bw.add_body(bw.keep(std::make_unique<btBoxShape>(btVector3(2, 0.05, 2))), 0.0, at, btVector3(0, 0, 0),
+                btBroadphaseProxy::StaticFilter, btBroadphaseProxy::AllFilter ^ btBroadphaseProxy::StaticFilter);
+    bullet::Coupling coupling(&bw.world());
     System& s = coupling.system();
     scenes::ClothGridSettings c = small_cloth(Vec3(-0.25, 0.1, -0.25));
     c.down = Vec3::UnitZ();
@@ -610,7 +594,7 @@ TEST(BulletCoupling, CollisionFiltersFollowBulletsGroupsAndMasks) {
     if (filtered)
       for (Index node : cloth.nodes)
         s.set_collision_filter(node, btBroadphaseProxy::DefaultFilter, btBroadphaseProxy::AllFilter ^ btBroadphaseProxy::StaticFilter);
-    for (int frame = 0; frame < 60; ++frame) bw.world.stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+    for (int frame = 0; frame < 60; ++frame) bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
     const double lowest = s.particles().x.row(1).minCoeff();
     if (filtered) {
       EXPECT_LT(lowest, -1.0) << "the filtered cloth fell through the ground";

@@ -1,8 +1,11 @@
-// Bullet scenes shared by sinew-demo, the regression tests and the benchmarks: each is a plain Bullet
-// world, set up as an application would, with sinew's coupling attached.
+// What the Bullet scenes share: a Bullet world that owns its objects, and the scene base class (a
+// plain Bullet world, set up as an application would, with sinew's coupling attached). The scenes
+// themselves are one file each (curtain.cpp, net.cpp, plates.cpp, hello.cpp), registered in the
+// scene library (scene.hpp).
 #pragma once
 
 #include "cloth.hpp"
+#include "scene.hpp"
 #include "sinew/bullet/coupling.hpp"
 
 #include <btBulletDynamicsCommon.h>
@@ -12,6 +15,12 @@
 #include <vector>
 
 namespace sinew::scenes {
+
+inline Vec3 to_eigen(const btVector3& v) { return Vec3(v.x(), v.y(), v.z()); }
+inline btVector3 to_bullet(const Vec3& v) { return btVector3(btScalar(v.x()), btScalar(v.y()), btScalar(v.z())); }
+inline btTransform at(const btVector3& origin, const btQuaternion& rotation = btQuaternion::getIdentity()) {
+  return btTransform(rotation, origin);
+}
 
 /// A Bullet world that owns its shapes, motion states, bodies and constraints.
 class BulletWorld {
@@ -46,17 +55,17 @@ class BulletWorld {
 };
 
 /// One demo scene: a Bullet world, the coupling, and what the demo reports about it.
-class BulletScene {
+class BulletScene : public Scene {
  public:
   explicit BulletScene(const btVector3& gravity, const bullet::CouplingSettings& settings = {});
-  virtual ~BulletScene() = default;
-  virtual std::string name() const = 0;
-  /// Bullet internal ticks per 1/60 s frame this scene is meant to run with.
-  virtual int default_substeps() const { return 4; }
   /// Called before each frame with the time at its start (animates kinematic bodies).
   virtual void before_frame(double time) { (void)time; }
-  /// Advances one frame: world.stepSimulation(frame_dt, substeps, frame_dt / substeps).
-  void advance(double frame_dt, int substeps);
+  /// Advances one frame: world.stepSimulation(frame_dt, substeps, frame_dt / substeps) (substeps:
+  /// Bullet internal ticks; sinew steps once per tick, substepping inside as its stability needs).
+  void advance(double frame_dt, int substeps) override;
+  SceneMeasures measure() override;
+  /// sinew's state hash mixed with every body's transform and velocities.
+  std::uint64_t state_hash() override;
 
   BulletWorld& bullet() { return m_world; }
   bullet::Coupling& coupling() { return *m_coupling; }
@@ -91,8 +100,10 @@ class BulletScene {
   double m_time = 0.0;
 };
 
+/// The registered scenes of kind SceneKind::bullet, in registration order.
 std::vector<std::string> bullet_scene_names();
-/// "curtain", "net", "plates" or "hello"; throws sinew::Error for anything else.
+/// The registered Bullet scene called `name`; throws sinew::Error for an unknown name or a scene of
+/// another kind.
 std::unique_ptr<BulletScene> make_bullet_scene(const std::string& name);
 
 }  // namespace sinew::scenes

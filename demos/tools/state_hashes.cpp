@@ -6,8 +6,8 @@
 // on the compiler and the C library's maths, so they are compared on one machine, not in CI.
 //
 //   sinew-hashes [--frames N]
-#include "bullet_scenes.hpp"
-#include "cloth.hpp"
+#include "bench_scene.hpp"
+#include "scene.hpp"
 #include "sinew_curtain.hpp"
 #include "stability.hpp"
 
@@ -20,44 +20,11 @@ namespace {
 
 using namespace sinew;
 
-struct Hash {
-  std::uint64_t h = 1469598103934665603ull;
-  void mix(const void* data, std::size_t bytes) {
-    const auto* c = static_cast<const unsigned char*>(data);
-    for (std::size_t i = 0; i < bytes; ++i) h = (h ^ c[i]) * 1099511628211ull;
-  }
-  void mix(double d) { mix(&d, sizeof d); }
-};
-
 void print(const std::string& name, std::uint64_t h) { std::printf("%-64s %016llx\n", name.c_str(), static_cast<unsigned long long>(h)); }
-
-// A Bullet scene: the system's state hash and every Bullet body's transform and velocities.
-std::uint64_t bullet_scene_hash(const std::string& name, int frames) {
-  auto scene = scenes::make_bullet_scene(name);
-  for (int f = 0; f < frames; ++f) scene->advance(1.0 / 60.0, scene->default_substeps());
-  Hash h;
-  const std::uint64_t s = scene->system().state_hash();
-  h.mix(&s, sizeof s);
-  for (const btRigidBody* body : scene->bullet().bodies()) {
-    const btTransform& t = body->getWorldTransform();
-    for (int i = 0; i < 3; ++i) {
-      h.mix(double(t.getOrigin()[i]));
-      h.mix(double(body->getLinearVelocity()[i]));
-      h.mix(double(body->getAngularVelocity()[i]));
-      for (int j = 0; j < 3; ++j) h.mix(double(t.getBasis()[i][j]));
-    }
-  }
-  return h.h;
-}
 
 std::uint64_t curtain_hash(bench::CurtainRun& run, int frames, double frame_dt, int ticks) {
   for (int f = 0; f < frames; ++f) run.advance(frame_dt, ticks);
-  Hash h;
-  const Vectors3 x = run.nodes();
-  h.mix(x.data(), sizeof(double) * x.size());
-  h.mix(run.energy());
-  h.mix(run.momentum_along_rod());
-  return h.h;
+  return scenes::BenchScene::hash(run);
 }
 
 }  // namespace
@@ -72,15 +39,19 @@ int main(int argc, char** argv) {
     }
   }
   try {
-    for (const std::string& name : scenes::bullet_scene_names()) print("scene/" + name, bullet_scene_hash(name, frames));
+    // Every registered Bullet scene at its own frame and ticks: sinew's state hash mixed with every
+    // Bullet body's transform and velocities (BulletScene::state_hash).
+    for (const scenes::SceneInfo& info : scenes::registered_scenes()) {
+      if (info.kind != scenes::SceneKind::bullet) continue;
+      auto scene = scenes::make_scene(info.name);
+      for (int f = 0; f < frames; ++f) scene->advance(scene->default_frame_dt(), scene->default_substeps());
+      print("scene/" + info.name, scene->state_hash());
+    }
 
     {
-      System system;
-      scenes::HangingClothSettings settings;
-      settings.cloth.nx = settings.cloth.ny = 20;
-      scenes::add_hanging_cloth(system, settings);
-      for (int f = 0; f < frames / 2; ++f) system.advance(1.0 / 60.0);
-      print("core/hanging-cloth-20", system.state_hash());
+      auto scene = scenes::make_scene("hanging-cloth", {.nx = 20, .ny = 20});
+      for (int f = 0; f < frames / 2; ++f) scene->advance(1.0 / 60.0, 1);
+      print("core/hanging-cloth-20", scene->state_hash());
     }
 
     // The benchmark's sinew settings (sinew-bench's make_run), a short run each.
