@@ -515,6 +515,61 @@ TEST(ChunkedScatter, DirectAndBufferedChunksGiveEachNodeItsTermsOnAnyThreadCount
   }
 }
 
+// ChunkedScatter over elements of varying size (Stencils, CSR): 2 to 5 nodes each, in grid order
+// (direct) and shuffled (buffered). The chunks split the elements as they split fixed-size ones of
+// the same count, and every node gets its terms with the same bits on one and two threads.
+TEST(ChunkedScatter, VariableStencilsGiveEachNodeItsTermsOnAnyThreadCount) {
+  const Index side = 80, nodes = side * side;
+  std::vector<std::vector<Index>> grid;
+  for (Index j = 0; j < side; ++j)
+    for (Index i = 0; i + 1 < side; ++i) {
+      const Index a = j * side + i;
+      std::vector<Index> element{a, a + 1};
+      for (Index extra = 0; extra < static_cast<Index>(grid.size() % 4) && a + side + extra < nodes; ++extra) element.push_back(a + side + extra);
+      grid.push_back(element);
+    }
+  std::vector<std::vector<Index>> shuffled = grid;
+  std::shuffle(shuffled.begin(), shuffled.end(), std::mt19937(32));
+  ASSERT_GE(static_cast<Index>(grid.size()), parallel::kMinChunkedElements);
+  for (const auto* elements : {&grid, &shuffled}) {
+    Stencils stencils;
+    for (const auto& element : *elements) stencils.push_back(element);
+    ASSERT_EQ(stencils.size(), static_cast<Index>(elements->size()));
+    const ChunkedScatter chunks(stencils, nodes);
+    const ChunkedScatter fixed(std::vector<std::array<Index, 2>>(elements->size()), nodes);
+    ASSERT_EQ(chunks.chunks().size(), fixed.chunks().size());
+    for (std::size_t c = 0; c < fixed.chunks().size(); ++c) {
+      EXPECT_EQ(chunks.chunks()[c].begin, fixed.chunks()[c].begin);
+      EXPECT_EQ(chunks.chunks()[c].end, fixed.chunks()[c].end);
+    }
+    ASSERT_GE(chunks.chunks().size(), 4u);
+    EXPECT_EQ(chunks.direct(), elements == &grid);
+    // Element e adds (e + 1) (a + 1) (1, 2, 3) to its a-th node.
+    auto term = [](Index e, Index a, Index c) { return static_cast<double>((e + 1) * (a + 1) * (c + 1)); };
+    auto scatter = [&](const ChunkedScatter::Chunk& chunk, double* out) {
+      for (Index e = chunk.begin; e < chunk.end; ++e) {
+        const std::span<const Index> element = stencils[e];
+        for (std::size_t a = 0; a < element.size(); ++a)
+          for (Index c = 0; c < 3; ++c) out[3 * element[a] + c] += term(e, static_cast<Index>(a), c);
+      }
+    };
+    Vectors3 expected = Vectors3::Constant(3, nodes, 0.5);
+    for (std::size_t e = 0; e < elements->size(); ++e)
+      for (std::size_t a = 0; a < (*elements)[e].size(); ++a)
+        for (Index c = 0; c < 3; ++c) expected(c, (*elements)[e][a]) += term(static_cast<Index>(e), static_cast<Index>(a), c);
+    auto run = [&](int threads) {
+      set_thread_count(threads);
+      Vectors3 f = Vectors3::Constant(3, nodes, 0.5);
+      chunks.run(f, scatter);
+      set_thread_count(1);
+      return f;
+    };
+    const Vectors3 one = run(1), two = run(2);
+    EXPECT_TRUE(one == expected) << "integer terms: exact in any order";
+    EXPECT_TRUE(one == two);
+  }
+}
+
 TEST(EdgeSprings, ForcesBalanceAndEnergyIsRigidInvariant) {
   std::mt19937 rng(5);
   const Cloth cloth;
