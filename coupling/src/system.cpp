@@ -3,6 +3,7 @@
 #include "sinew/parallel.hpp"
 
 #include "newmark.hpp"
+#include "step_model.hpp"
 
 #include <Eigen/Eigenvalues>
 
@@ -89,8 +90,7 @@ void System::allow_binding_change(bool rigid) {
 }
 
 bool System::unbind(Index particle) {
-  const Index code = m_hard.binding_of(particle);
-  allow_binding_change(code != HardBindings::unbound && code < 0);
+  allow_binding_change(m_hard.on_rigid_frame(particle));
   return m_hard.remove(particle);
 }
 
@@ -105,7 +105,7 @@ Vec3 System::binding_spring_force(Index spring) const {
 }
 
 Vec3 System::hard_binding_force(Index particle) const {
-  if (m_hard.binding_of(particle) == HardBindings::unbound) fail("particle ", particle, " is not hard-bound");
+  if (!m_hard.is_bound(particle)) fail("particle ", particle, " is not hard-bound");
   return m_newmark ? m_newmark->bound_force(particle) : Vec3::Zero();
 }
 
@@ -214,16 +214,12 @@ void System::finalize() {
   // Particle kinds: hard-bound rows first, then soft-bound ones, each checked against the others.
   auto& kind = m_particles.kind;
   kind = m_input_kind;
-  for (Index k = 0; k < m_hard.linear_count(); ++k) {
-    const Index p = m_hard.linear_particle(k);
-    if (kind[p] == ParticleKind::kinematic) fail("particle ", p, " is kinematic and cannot be hard-bound");
-    kind[p] = ParticleKind::hard_bound;
-  }
-  for (Index k = 0; k < m_hard.rigid_count(); ++k) {
-    const Index p = m_hard.rigid_particle(k);
-    if (kind[p] == ParticleKind::kinematic) fail("particle ", p, " is kinematic and cannot be hard-bound");
-    kind[p] = ParticleKind::hard_bound;
-  }
+  for (const BindingKind* binding : m_hard.kinds())
+    for (Index k = 0; k < binding->size(); ++k) {
+      const Index p = binding->particle(k);
+      if (kind[p] == ParticleKind::kinematic) fail("particle ", p, " is kinematic and cannot be hard-bound");
+      kind[p] = ParticleKind::hard_bound;
+    }
   std::vector<std::uint8_t> is_soft(static_cast<std::size_t>(n), 0);
   for (Index s = 0; s < m_soft.size(); ++s) {
     const Index p = m_soft.particle[s], t = m_soft.target[s];
@@ -244,16 +240,9 @@ void System::finalize() {
   // particles pass w_i m_bar to each parent (weight w, not w^2: momentum P = m_bar^T W v).
   m_particles.mass = m_input_mass;
   m_hard.update_rigid_offsets(m_bodies);
-  if (m_settings.absorb_bound_mass_into_rigid_bodies) absorb_bound_masses();
+  if (m_settings.absorb_bound_mass_into_rigid_bodies) m_hard.absorb_masses_into_bodies(m_particles.mass, m_bodies);
   m_hard.update_rigid_offsets(m_bodies);
-  for (Index k = 0; k < m_hard.rigid_count(); ++k) m_particles.mass[m_hard.rigid_particle(k)] = 0.0;
-  for (Index k = 0; k < m_hard.linear_count(); ++k) {
-    const Index p = m_hard.linear_particle(k);
-    const auto parents = m_hard.linear_parents(k);
-    const auto weights = m_hard.linear_weights(k);
-    for (std::size_t j = 0; j < parents.size(); ++j) m_particles.mass[parents[j]] += weights[j] * m_particles.mass[p];
-    m_particles.mass[p] = 0.0;
-  }
+  m_hard.distribute_masses(m_particles.mass);
   for (Index i = 0; i < n; ++i) {
     if (kind[i] == ParticleKind::kinematic) m_particles.mass[i] = kInfinity;
     if (kind[i] == ParticleKind::free && !(m_particles.mass[i] > 0.0))
@@ -270,60 +259,12 @@ void System::finalize() {
   m_topology_changed = false;
 }
 
-void System::absorb_bound_masses() {
-  // A point of mass m_bar fixed in a rigid frame is part of that body: merge it by the parallel-axis
-  // theorem, move the centre of mass, rediagonalise the inertia and re-express every offset of the
-  // body in the new principal frame. Momentum is kept: the new centre of mass moves with the velocity
-  // the old frame gives it.
-  for (Index b = 0; b < m_bodies.size(); ++b) {
-    if (m_bodies.kinematic[b]) continue;
-    double added = 0.0;
-    Vec3 moment = Vec3::Zero();
-    for (Index k = 0; k < m_hard.rigid_count(); ++k) {
-      if (m_hard.rigid_body(k) != b) continue;
-      const double m = m_particles.mass[m_hard.rigid_particle(k)];
-      added += m;
-      moment += m * (m_bodies.x.col(b) + m_hard.rigid_offset_world(k));
-    }
-    if (added == 0.0) continue;
-    const double m0 = m_bodies.mass[b];
-    const Vec3 c0 = m_bodies.x.col(b);
-    const double total = m0 + added;
-    const Vec3 c = (m0 * c0 + moment) / total;
-    auto point_inertia = [](double m, const Vec3& d) { return m * (d.squaredNorm() * Mat3::Identity() - d * d.transpose()); };
-    Mat3 inertia = m_bodies.world_inertia(b) + point_inertia(m0, c0 - c);
-    for (Index k = 0; k < m_hard.rigid_count(); ++k)
-      if (m_hard.rigid_body(k) == b)
-        inertia += point_inertia(m_particles.mass[m_hard.rigid_particle(k)], c0 + m_hard.rigid_offset_world(k) - c);
-    Eigen::SelfAdjointEigenSolver<Mat3> eig(inertia);
-    Mat3 r = eig.eigenvectors();
-    if (r.determinant() < 0) r.col(2) = -r.col(2);
-    const Quat q_new(r);
-    const Vec3 w = m_bodies.w.col(b);
-    for (Index k = 0; k < m_hard.rigid_count(); ++k)
-      if (m_hard.rigid_body(k) == b)
-        m_hard.set_rigid_offset_body(k, q_new.conjugate() * (c0 + m_hard.rigid_offset_world(k) - c));
-    m_bodies.v.col(b) += w.cross(c - c0);
-    m_bodies.x.col(b) = c;
-    m_bodies.q[b] = q_new.normalized();
-    m_bodies.mass[b] = total;
-    m_bodies.inertia.col(b) = eig.eigenvalues();
-  }
-}
-
 void System::compute_effective_masses() {
   const Index n = m_particles.size();
   m_inverse_effective_mass.setZero(n);
   for (Index i = 0; i < n; ++i)
     if (m_particles.kind[i] == ParticleKind::free) m_inverse_effective_mass[i] = 1.0 / m_particles.mass[i];
-  for (Index k = 0; k < m_hard.linear_count(); ++k)
-    m_inverse_effective_mass[m_hard.linear_particle(k)] = m_hard.inverse_effective_mass_linear(k, m_particles.mass);
-  for (Index k = 0; k < m_hard.rigid_count(); ++k) {
-    // The impulse matrix K's eigenvalues do not depend on the orientation (K rotates with the body),
-    // so its largest eigenvalue, the smallest effective mass, is a constant of the binding.
-    const Mat3 K = m_bodies.impulse_matrix(m_hard.rigid_body(k), m_hard.rigid_offset_world(k));
-    m_inverse_effective_mass[m_hard.rigid_particle(k)] = Eigen::SelfAdjointEigenSolver<Mat3>(K).eigenvalues().maxCoeff();
-  }
+  m_hard.inverse_effective_masses(m_particles.mass, m_bodies, m_inverse_effective_mass);
   for (Index s = 0; s < m_soft.size(); ++s) {
     const Index p = m_soft.particle[s], t = m_soft.target[s];
     double m = m_soft.mass_override[s];
@@ -346,35 +287,14 @@ double System::effective_mass(Index particle) const {
 }
 
 double System::effective_mass_along(Index particle, const Vec3& n) const {
-  const Index code = m_hard.binding_of(particle);
-  if (code == HardBindings::unbound || code >= 0) return effective_mass(particle);
-  const Index k = -code - 1;
-  const Vec3 r = m_bodies.q[m_hard.rigid_body(k)] * m_hard.rigid_offset_body(k);
-  const double inverse = n.dot(m_bodies.impulse_matrix(m_hard.rigid_body(k), r) * n);
-  return inverse > 0.0 ? 1.0 / inverse : kInfinity;
+  return m_hard.effective_mass_along(particle, n, effective_mass(particle), m_bodies);
 }
 
 void System::apply_impulse(Index particle, const Vec3& j) {
   finalize();
   if (particle < 0 || particle >= m_particles.size()) fail("apply_impulse: particle ", particle, " does not exist");
   if (!all_finite(j)) fail("apply_impulse: impulse on particle ", particle, " is not finite");
-  const Index code = m_hard.binding_of(particle);
-  if (code == HardBindings::unbound) {
-    if (m_particles.kind[particle] != ParticleKind::kinematic) m_particles.v.col(particle) += j / m_particles.mass[particle];
-  } else if (code >= 0) {
-    const auto parents = m_hard.linear_parents(code);
-    const auto weights = m_hard.linear_weights(code);
-    for (std::size_t i = 0; i < parents.size(); ++i)
-      if (m_particles.kind[parents[i]] != ParticleKind::kinematic)
-        m_particles.v.col(parents[i]) += (weights[i] / m_particles.mass[parents[i]]) * j;
-  } else {
-    const Index k = -code - 1, b = m_hard.rigid_body(k);
-    if (!m_bodies.kinematic[b]) {
-      const Vec3 r = m_bodies.q[b] * m_hard.rigid_offset_body(k);
-      m_bodies.v.col(b) += j / m_bodies.mass[b];
-      m_bodies.w.col(b) += m_bodies.world_inverse_inertia(b) * r.cross(j);
-    }
-  }
+  m_hard.apply_impulse(particle, j, m_particles, m_bodies);
   clamp_bound_rows();
 }
 
@@ -382,11 +302,7 @@ void System::clamp_bound_rows() {
   m_hard.update_rigid_offsets(m_bodies);
   m_hard.clamp_positions(m_particles.x, m_bodies.x);
   m_hard.clamp_velocities(m_particles.v, m_bodies.v, m_bodies.w);
-  for (Index s = 0; s < m_soft.size(); ++s) {
-    if (m_soft.coupling[s] != SoftCoupling::synchronized) continue;
-    m_particles.x.col(m_soft.particle[s]) = m_particles.x.col(m_soft.target[s]);
-    m_particles.v.col(m_soft.particle[s]) = m_particles.v.col(m_soft.target[s]);
-  }
+  m_soft.synchronize(m_particles, true, true);
 }
 
 StepStats System::step(double dt) {
@@ -397,7 +313,9 @@ StepStats System::step(double dt) {
     fail("step settings: multigrid needs jacobi_preconditioner (block Jacobi is its finest level)");
   finalize();
   set_thread_count(m_step_settings.threads);
-  StepStats stats = m_newmark->step(*this, dt);
+  const StepModel model{m_particles, m_bodies, m_hard,         m_soft,          m_springs,        m_forces,
+                        m_step_settings, m_settings.gravity, m_joint_rows, m_effective_mass, m_collision_hook, m_time};
+  StepStats stats = m_newmark->step(model, dt);
   m_time += dt;
   return stats;
 }
@@ -486,22 +404,7 @@ double System::potential_energy() {
   return e;
 }
 
-double System::max_hard_binding_drift() const {
-  double drift = 0.0;
-  for (Index k = 0; k < m_hard.linear_count(); ++k) {
-    Vec3 xe = Vec3::Zero();
-    const auto parents = m_hard.linear_parents(k);
-    const auto weights = m_hard.linear_weights(k);
-    for (std::size_t j = 0; j < parents.size(); ++j) xe += weights[j] * m_particles.x.col(parents[j]);
-    drift = std::max(drift, (xe - m_particles.x.col(m_hard.linear_particle(k))).norm());
-  }
-  for (Index k = 0; k < m_hard.rigid_count(); ++k) {
-    const Index b = m_hard.rigid_body(k);
-    const Vec3 xe = m_bodies.x.col(b) + m_bodies.q[b] * m_hard.rigid_offset_body(k);
-    drift = std::max(drift, (xe - m_particles.x.col(m_hard.rigid_particle(k))).norm());
-  }
-  return drift;
-}
+double System::max_hard_binding_drift() const { return m_hard.max_drift(m_particles.x, m_bodies); }
 
 std::uint64_t System::state_hash() const {
   std::uint64_t h = 1469598103934665603ull;

@@ -1,22 +1,23 @@
 // Hard bindings (Sifakis et al. 2007, sections 2 and 5): points with no degrees of freedom whose
 // state is a linear map W of their parents.
 //
-//   linear binding   x_e = sum_i w_i x_i,   v_e = sum_i w_i v_i         (segment, triangle, tet,
-//                    or k parents of a point-cloud embedding, section 2.2), sum_i w_i = 1;
-//   rigid binding    x_e = x_c + R(q) r0,   v_e = v_c + w x r = W(q) (v_c, w),
-//                    W(q) = [I  r*^T], r = R(q) r0                      (section 5).
+// Each kind of binding lives in its own class (sinew/bindings/): LinearBindings, points embedded in
+// particles (segment, triangle, tet, point cloud), and RigidBindings, points on rigid frames. A kind
+// owns its maths (W, W^T, masses, effective masses, impulses, drift, preconditioner blocks; see
+// BindingKind). This class holds one of each, visits them in a fixed order (linear, then rigid: the
+// order every sum is taken in), finds the binding of a particle, and resolves chains: a parent is
+// never itself bound once flatten() has run (T-junctions on refined edges, points on points of a
+// rigid frame), so W and W^T are single passes in list order.
 //
-// Forces on a bound point go to its parents through W^T (eq. 1-3): f_i += w_i f, or the wrench
-// (f, r x f) for a rigid parent. Masses go the same way (m = W^T m_bar). The effective mass of a
-// bound point is 1/m_e = sum w_i^2 / m_i (eq. 4), or the impulse matrix K = I/m + r*^T I^-1 r*
-// for a rigid parent. Bindings are stored flattened: a parent is never itself bound (chains such as
-// T-junctions on refined edges are resolved when the system is set up), so W and W^T are single
-// passes in list order.
+// Adding a kind: its class under sinew/bindings/ (and src/bindings/), a member here and its entry
+// in kinds().
 #pragma once
 
-#include "sinew/particles.hpp"
-#include "sinew/rigid_body_particles.hpp"
+#include "sinew/bindings/linear_bindings.hpp"
+#include "sinew/bindings/rigid_bindings.hpp"
 
+#include <array>
+#include <cstdint>
 #include <span>
 #include <vector>
 
@@ -39,22 +40,32 @@ class HardBindings {
   /// linear bindings whose parents lie on different rigid bodies or mix rigid and free parents.
   void flatten(Index particle_count, Index rigid_count);
 
-  Index linear_count() const { return static_cast<Index>(m_linear_particle.size()); }
-  Index rigid_count() const { return static_cast<Index>(m_rigid_particle.size()); }
+  /// Every kind, in the order every pass visits them.
+  std::array<const BindingKind*, 2> kinds() const { return {&m_linear, &m_rigid}; }
+  const LinearBindings& linear() const { return m_linear; }
+  const RigidBindings& rigid() const { return m_rigid; }
+
+  Index linear_count() const { return m_linear.size(); }
+  Index rigid_count() const { return m_rigid.size(); }
   Index size() const { return linear_count() + rigid_count(); }
-
-  Index linear_particle(Index k) const { return m_linear_particle[k]; }
-  std::span<const Index> linear_parents(Index k) const;
-  std::span<const double> linear_weights(Index k) const;
-  Index rigid_particle(Index k) const { return m_rigid_particle[k]; }
-  Index rigid_body(Index k) const { return m_rigid_body[k]; }
-  const Vec3& rigid_offset_body(Index k) const { return m_r0[k]; }
+  Index linear_particle(Index k) const { return m_linear.particle(k); }
+  std::span<const Index> linear_parents(Index k) const { return m_linear.parents(k); }
+  std::span<const double> linear_weights(Index k) const { return m_linear.weights(k); }
+  Index rigid_particle(Index k) const { return m_rigid.particle(k); }
+  Index rigid_body(Index k) const { return m_rigid.body(k); }
+  const Vec3& rigid_offset_body(Index k) const { return m_rigid.offset_body(k); }
   /// World offset r = R(q) r0 at the frames of the last update_rigid_offsets call.
-  Vec3 rigid_offset_world(Index k) const { return m_r.col(k); }
-  /// Moves a rigid binding's body-frame offset (used when mass absorption shifts a centre of mass).
-  void set_rigid_offset_body(Index k, const Vec3& r0) { m_r0[k] = r0; }
+  Vec3 rigid_offset_world(Index k) const { return m_rigid.offset_world(k); }
 
-  // ---- W, W^T ----------------------------------------------------------------------------------
+  /// True when `particle` is hard-bound (after flatten()).
+  bool is_bound(Index particle) const { return kind_of(particle) != nullptr; }
+  /// True when `particle` is bound to a rigid frame.
+  bool on_rigid_frame(Index particle) const {
+    const BindingKind* kind = kind_of(particle);
+    return kind != nullptr && kind->on_rigid_frames();
+  }
+
+  // ---- W, W^T over every binding -----------------------------------------------------------------
   /// Caches r = R(q) r0 for every rigid binding; call whenever orientations change.
   void update_rigid_offsets(const RigidBodyParticles& bodies);
   /// x_e = W x for every bound row (positions of parents and centres of mass).
@@ -63,43 +74,50 @@ class HardBindings {
   void clamp_velocities(Vectors3& v, const Vectors6& twist) const;
   /// Same with the twist given as separate linear and angular blocks.
   void clamp_velocities(Vectors3& v, const Vectors3& body_v, const Vectors3& body_w) const;
-  /// W^T: adds each bound row's force to its parents (f_i += w_i f, wrench += (f, r x f)) and then
-  /// zeroes the bound row, so the result lives on parents only.
+  /// W^T: adds each bound row's force to its parents and zeroes the bound row.
   void distribute(Vectors3& f, Vectors6& wrench) const;
-  /// sum_i w_i a_i for linear bindings or a_c + alpha x r for rigid ones: the acceleration of a
-  /// bound point given parent accelerations (the centripetal term w x (w x r) is left out, as in
-  /// the paper's force mapping, because it is not a force).
-  Vec3 embedded_acceleration(Index particle, const Vectors3& a, const Vectors6& rigid_a) const;
+  /// m = W^T m_bar on every bound row (BindingKind::distribute_masses).
+  void distribute_masses(VectorXd& mass) const;
+  /// W^T B W of every bound row's diagonal block (BindingKind::add_preconditioner_blocks).
+  void add_preconditioner_blocks(DiagonalBlocks& blocks, std::vector<Mat6>& body_blocks) const;
+  /// 1/m_e (eq. 4) of every bound row into inverse_mass (per particle), from the parents' masses.
+  void inverse_effective_masses(const VectorXd& mass, const RigidBodyParticles& bodies, VectorXd& inverse_mass) const;
+  /// Merges the points' masses into their rigid bodies (RigidBindings::absorb_masses).
+  void absorb_masses_into_bodies(const VectorXd& mass, RigidBodyParticles& bodies) { m_rigid.absorb_masses(mass, bodies); }
+  /// Largest |x_e - W x_parents| over every binding.
+  double max_drift(const Vectors3& x, const RigidBodyParticles& bodies) const;
+  /// out.col(i) = (add ? out.col(i) : 0) + f.col(i) on every bound row i (the forces bindings carry).
+  void record_bound_rows(const Vectors3& f, Vectors3& out, bool add) const;
 
-  // ---- masses and impulses -----------------------------------------------------------------------
-  /// 1/m_e = sum_i w_i^2 / m_i (eq. 4) for a linear binding; 0 when every parent is kinematic.
-  double inverse_effective_mass_linear(Index k, const VectorXd& mass) const;
-  /// Binding index of a bound particle: k >= 0 linear, -(k+1) rigid; `unbound` when not bound.
-  static constexpr Index unbound = std::numeric_limits<Index>::min();
-  Index binding_of(Index particle) const {
-    return particle < static_cast<Index>(m_binding_of.size()) ? m_binding_of[particle] : unbound;
-  }
+  // ---- one particle, through its binding (unbound particles are their own parents) ---------------
+  /// The acceleration of `particle` given the parents' forces after W^T (f, wrench): f/m for a free
+  /// particle, 0 for a kinematic one, BindingKind::point_acceleration for a bound one.
+  Vec3 point_acceleration(Index particle, const Particles& p, const RigidBodyParticles& bodies, const Vectors3& f,
+                          const Vectors6& wrench) const;
+  /// The effective mass along unit direction n; `scalar` is the particle's eq. 4 effective mass.
+  double effective_mass_along(Index particle, const Vec3& n, double scalar, const RigidBodyParticles& bodies) const;
+  /// Impulse j at `particle`: its own velocity if free, its parents' if bound; bound rows are not
+  /// re-clamped here.
+  void apply_impulse(Index particle, const Vec3& j, Particles& p, RigidBodyParticles& bodies) const;
+  /// Moves `particle` (free: itself; bound: its parents) so that it moves by dx and its velocity
+  /// changes by dv (section 3.1's drift push-back); m_e its effective mass.
+  void push_drift(Index particle, const Vec3& dx, const Vec3& dv, Particles& p, RigidBodyParticles& bodies,
+                  const VectorXd& effective_mass, Vectors3& L_n);
 
  private:
+  const BindingKind* kind_of(Index particle) const {
+    if (particle < 0 || particle >= static_cast<Index>(m_kind_of.size()) || m_kind_of[particle] < 0) return nullptr;
+    return kinds()[static_cast<std::size_t>(m_kind_of[particle])];
+  }
+  BindingKind* mutable_kind(int kind) { return kind == 0 ? static_cast<BindingKind*>(&m_linear) : &m_rigid; }
   void rebuild_lookup(Index particle_count);
-  /// y_e = sum_i w_i y_i for every linear binding (positions or velocities alike).
-  void clamp_linear(Vectors3& y) const;
 
-  // Linear bindings in compressed rows: parents/weights of binding k in [m_offset[k], m_offset[k+1]).
-  // m_*_id is the order in which the user added the binding, used to name it in messages.
-  std::vector<Index> m_linear_id;
-  std::vector<Index> m_rigid_id;
-  Index m_added = 0;
-  std::vector<Index> m_linear_particle;
-  std::vector<Index> m_offset{0};
-  std::vector<Index> m_parent;
-  std::vector<double> m_weight;
-  // Rigid bindings.
-  std::vector<Index> m_rigid_particle;
-  std::vector<Index> m_rigid_body;
-  std::vector<Vec3> m_r0;
-  Vectors3 m_r;  // cached world offsets (3 x rigid_count)
-  std::vector<Index> m_binding_of;
+  LinearBindings m_linear;
+  RigidBindings m_rigid;
+  Index m_added = 0;  // bindings ever added: the id that names the next one in messages
+  // Per particle: the kind (index into kinds(), -1 when unbound) and the binding's index in it.
+  std::vector<std::int8_t> m_kind_of;
+  std::vector<Index> m_index_in_kind;
 };
 
 }  // namespace sinew

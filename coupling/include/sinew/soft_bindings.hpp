@@ -15,7 +15,9 @@
 //                 the next synchronisation (section 3.1).
 #pragma once
 
-#include "sinew/types.hpp"
+#include "sinew/hard_bindings.hpp"
+#include "sinew/particles.hpp"
+#include "sinew/rigid_body_particles.hpp"
 
 #include <cstdint>
 #include <vector>
@@ -43,6 +45,28 @@ struct SoftBindings {
   std::vector<double> mass_override;
 
   Index size() const { return static_cast<Index>(particle.size()); }
+  bool has_synchronized() const;
+
+  // ---- the soft bindings' maths (each kind's rule in one place) ----------------------------------
+  /// Copies each synchronized particle's target state into it (section 3.1).
+  void synchronize(Particles& p, bool positions, bool velocities) const;
+  /// The same on one 3 x N array (the implicit solves' trial velocities).
+  void synchronize(Vectors3& y) const;
+  /// Adds each synchronized row's force to its target row and clears the soft row: a synchronized
+  /// particle is its target, so what acts on it acts on the target.
+  void gather_synchronized(Vectors3& f) const;
+  /// The same for the block-Jacobi diagonal blocks (9 x N, column-major 3x3).
+  void gather_synchronized(Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const;
+  /// Section 3: f_s += m_s a_target on every spring-coupled particle, a_target the acceleration its
+  /// target gets from the parents' forces (f on particles, wrench on rigid bodies, already passed
+  /// through W^T). Returns the sum of the mapped forces (the momentum the mapping adds per second).
+  Vec3 map_forces(const Particles& p, const RigidBodyParticles& bodies, const HardBindings& hard, Vectors3& f,
+                  const Vectors6& wrench) const;
+  /// Section 3.1: pushes the drift of synchronized particles from their targets (collisions moved
+  /// them) back to the targets' parents, so that the next synchronisation keeps it. L_n: the rigid
+  /// bodies' angular momenta at the step's start, which an impulse at a rigid target changes.
+  void push_drift(Particles& p, RigidBodyParticles& bodies, HardBindings& hard, const VectorXd& effective_mass,
+                  Vectors3& L_n) const;
 };
 
 }  // namespace sinew

@@ -258,13 +258,11 @@ class System {
   std::uint64_t state_hash() const;
 
  private:
-  friend class Newmark;
   void add_force_impl(std::unique_ptr<Force> force);
   void require_not_finalized(const char* what) const;
   void require_finalized(const char* what) const;
   /// Bindings may change after set-up unless rigid-frame masses were merged into bodies.
   void allow_binding_change(bool rigid);
-  void absorb_bound_masses();
   void compute_effective_masses();
 
   SystemSettings m_settings;

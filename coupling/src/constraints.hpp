@@ -1,0 +1,55 @@
+// The constrained directions of the Newmark step's implicit solves (internal to sinew::Newmark):
+// rows without unknowns, kinematic bodies, the collision normals of step 3, and the joint rows
+// between rigid-body particles. Each is a projection, so CG works in the constraints' null space
+// and the constrained components keep their prescribed values (projected CG).
+#pragma once
+
+#include "step_model.hpp"
+
+#include <Eigen/SVD>
+
+#include <vector>
+
+namespace sinew {
+
+class Constraints {
+ public:
+  void reset(const Unknowns& unknowns);
+  std::vector<CollisionConstraint>& collisions() { return m_collisions; }
+  const std::vector<CollisionConstraint>& collisions() const { return m_collisions; }
+
+  /// Groups the dynamic bodies that joint rows connect and factors each group's rows (SVD), once per
+  /// step: the orthonormal basis of the rows' span and the least-norm twists meeting the targets.
+  void prepare_joints(const std::vector<JointRow>& rows, const RigidBodyParticles& bodies);
+  bool has_joints() const { return m_joint_group_count > 0; }
+
+  /// Zeroes rows without unknowns, then project_constraints.
+  void project(GeneralizedVector& u) const;
+  /// project() without the particle mask: for vectors already zero on rows without unknowns.
+  void project_constraints(GeneralizedVector& u) const;
+  /// Sets the joint rows' components of the rigid twists in u to their targets (the rest is kept).
+  void impose_joints(GeneralizedVector& u) const { project_joint_groups(u, true); }
+
+ private:
+  void project_joint_groups(GeneralizedVector& u, bool impose_targets) const;
+
+  const Unknowns* m_unknowns = nullptr;
+  std::vector<CollisionConstraint> m_collisions;
+  struct JointGroup {
+    std::vector<Index> bodies;  // ascending
+    Eigen::MatrixXd basis;      // 6k x rank, orthonormal, spanning the rows
+    VectorXd particular;        // 6k, in the span: the least-norm twists on the targets
+    // Set-up scratch, kept so that a step whose joints have the same shape as the last allocates nothing.
+    std::vector<Index> rows;    // indices into the system's joint rows
+    Eigen::MatrixXd J;
+    VectorXd t, coefficients;
+    Eigen::JacobiSVD<Eigen::MatrixXd> svd;
+  };
+  // The first m_joint_group_count entries are this step's groups; entries past it keep their storage.
+  std::vector<JointGroup> m_joint_groups;
+  std::size_t m_joint_group_count = 0;
+  std::vector<Index> m_joint_root, m_joint_group_of;
+  mutable VectorXd m_joint_scratch, m_joint_coefficients;
+};
+
+}  // namespace sinew

@@ -1,0 +1,48 @@
+// The implicit system of the Newmark step's velocity solves (eq. 8, internal to sinew::Newmark):
+//
+//   S u = M u - h W^T (D + beta K_springs + beta_el K+) W u
+//
+// on the unknowns (free and soft-spring particles, dynamic rigid twists), applied matrix-free: W by
+// clamping bound rows from the trial velocities (hard bindings are eliminated, not projected),
+// synchronized soft rows copied from their targets, the forces' implicit products, W^T back to the
+// parents. Rows without unknowns come out zero; constrained directions are projected.
+#pragma once
+
+#include "cg.hpp"
+#include "constraints.hpp"
+#include "preconditioner.hpp"
+#include "step_model.hpp"
+
+namespace sinew {
+
+class ImplicitSystem final : public LinearOperator {
+ public:
+  ImplicitSystem(const Unknowns& unknowns, Constraints& constraints, Preconditioner& preconditioner)
+      : m_unknowns(unknowns), m_constraints(constraints), m_preconditioner(preconditioner) {}
+  void reset();
+  /// The model, coefficients and world inertias (body_I) the products use until the next call.
+  void set(const StepModel& model, const SolveCoefficients& k, const std::vector<Mat3>& body_I) {
+    m_model = &model;
+    m_k = k;
+    m_body_I = &body_I;
+  }
+
+  void apply(const GeneralizedVector& u, GeneralizedVector& out) override;
+  void precondition(const GeneralizedVector& r, GeneralizedVector& z) override { m_preconditioner.apply(r, z, m_constraints); }
+  void project(GeneralizedVector& u) const override { m_constraints.project(u); }
+  void impose(GeneralizedVector& u) const override { m_constraints.impose_joints(u); }
+
+ private:
+  const Unknowns& m_unknowns;
+  Constraints& m_constraints;
+  Preconditioner& m_preconditioner;
+  const StepModel* m_model = nullptr;
+  SolveCoefficients m_k;
+  const std::vector<Mat3>* m_body_I = nullptr;
+  Vectors3 m_tmp_v, m_apply_f;
+  Vectors6 m_apply_wrench;
+  VectorXd m_h_mask3;        // h on the dynamic rows' coordinates (3N), 0 elsewhere
+  double m_h_mask_h = -1.0;  // the h m_h_mask3 holds
+};
+
+}  // namespace sinew
