@@ -1,5 +1,6 @@
 // Element forces: every derivative against central finite differences, damping structure,
 // invariances, closed-form cases and degenerate inputs.
+#include "sinew/forces/centroid_springs.hpp"
 #include "sinew/forces/corotated_tets.hpp"
 #include "sinew/forces/dihedral_bending.hpp"
 #include "sinew/forces/edge_springs.hpp"
@@ -396,16 +397,37 @@ ForceCase corotated_tets_case(bool small, std::mt19937& rng) {
   return {std::move(tets), block.rest, block.deformed(rng), m, 1.0, 1e4};
 }
 
+// Particles at random in a box, each tied to the centroid of the next 1 to 5 (stencils of 2 to 6
+// nodes, wrapping around).
+ForceCase centroid_springs_case(bool small, std::mt19937& rng) {
+  const Index n = small ? 12 : 2400;
+  const Vectors3 rest = random_like(Vectors3::Zero(3, n), 1.0, rng);
+  Stencils stencils;
+  for (Index p = 0; p < n; ++p) {
+    std::vector<Index> nodes{p};
+    for (Index j = 1; j <= 1 + p % 5; ++j) nodes.push_back((p + j) % n);
+    stencils.push_back(nodes);
+  }
+  Mat3 a;
+  a << 1.2, 0.2, 0.0, -0.1, 0.8, 0.1, 0.1, 0.3, 1.1;
+  const Vectors3 x = a * rest + random_like(rest, 0.1, rng);
+  return {std::make_unique<CentroidSprings>(stencils, rest, CentroidSpringsSettings{.stiffness = 200.0, .damping = 0.7}), rest, x,
+          masses(n, 0.01, {0}), 0.5, 200.0};
+}
+
 struct NamedFactory {
   const char* name;
   ForceFactory make;
 };
+
+void PrintTo(const NamedFactory& factory, std::ostream* os) { *os << factory.name; }
 
 const NamedFactory kForceFactories[] = {
     {"EdgeSprings", edge_springs_case},
     {"TriangleMembrane", triangle_membrane_case},
     {"DihedralBending", dihedral_bending_case},
     {"CorotatedTets", corotated_tets_case},
+    {"CentroidSprings", centroid_springs_case},
 };
 
 class EveryForce : public ::testing::TestWithParam<NamedFactory> {
