@@ -9,7 +9,7 @@ namespace sinew::test {
 
 /// Each listed particle hangs on a linear spring to a fixed anchor with linear damping:
 /// f = -k (x - anchor) - c v. One particle on it is a harmonic oscillator with a known solution.
-class AnchorSprings final : public Force {
+class AnchorSprings final : public Force, public ImplicitBlocks {
  public:
   AnchorSprings(std::vector<Index> particles, Vectors3 anchors, double k, double c)
       : m_particles(std::move(particles)), m_anchors(std::move(anchors)), m_k(k), m_c(c) {}
@@ -33,14 +33,16 @@ class AnchorSprings final : public Force {
   void add_damping_forces(const Vectors3& v, Vectors3& f) const override {
     for (Index p : m_particles) f.col(p) -= m_c * v.col(p);
   }
-  void add_damping_diagonal(VectorXd& diag) const override {
-    for (Index p : m_particles) diag[p] += m_c;
-  }
   bool has_damping() const override { return m_c > 0; }
   double stable_dt(const VectorXd& m) const override {
     double dt = kInfinity;
     for (Index p : m_particles) dt = std::min(dt, 2.0 * std::sqrt(m[p] / m_k));
     return dt;
+  }
+  /// The scalar diagonal only (D = -c I per particle; no definite differential, so b is 0).
+  const ImplicitBlocks* implicit_blocks() const override { return this; }
+  void add_diagonal(double, VectorXd& diag) const override {
+    for (Index p : m_particles) diag[p] += m_c;
   }
 
  private:

@@ -221,7 +221,7 @@ TEST(Multigrid, UpdatesFollowThePlanAndAChangedForceSetIsNamed) {
 }
 
 /// The grid operator's pair blocks as a force passes them: through the visit, and one at a time.
-class GridBlocks final : public Force {
+class GridBlocks final : public Force, public ImplicitBlocks {
  public:
   explicit GridBlocks(const GridOperator& op, bool single) : m_op(op), m_single(single) {}
   std::string_view name() const override { return "grid blocks"; }
@@ -230,12 +230,14 @@ class GridBlocks final : public Force {
   double potential_energy(const Vectors3&) const override { return 0.0; }
   void add_elastic_forces(const Vectors3&, Vectors3&) const override {}
   void add_elastic_differentials(const Vectors3&, Vectors3&) const override {}
-  bool visit_implicit_pair_blocks(double b, PairBlockSink& sink) const override {
+  const ImplicitBlocks* implicit_blocks() const override { return this; }
+  void add_diagonal(double, VectorXd&) const override {}
+  bool visit_pair_blocks(double b, PairBlockSink& sink) const override {
     for (std::size_t e = 0; e < m_op.pairs.size(); ++e) sink.add(m_op.pairs[e][0], m_op.pairs[e][1], b * m_op.blocks[e]);
     return true;
   }
-  Index implicit_pair_block_count() const override { return m_single ? static_cast<Index>(m_op.pairs.size()) : 0; }
-  Mat3 implicit_pair_block(Index k, double b) const override { return b * m_op.blocks[static_cast<std::size_t>(k)]; }
+  Index pair_block_count() const override { return m_single ? static_cast<Index>(m_op.pairs.size()) : 0; }
+  Mat3 pair_block(Index k, double b) const override { return b * m_op.blocks[static_cast<std::size_t>(k)]; }
 
  private:
   const GridOperator& m_op;
@@ -257,8 +259,8 @@ TEST(Multigrid, GatheredLevelOneIsTheVisitedOneBitForBit) {
       const std::vector<AggregationMultigrid::PairBlockSource> sources{{&first, b}, {&second, 3.0 * b}};
       if (!gather || !mg.gather(sources)) {
         EXPECT_FALSE(gather && !recording) << "gather declined a planned hierarchy";
-        first.visit_implicit_pair_blocks(b, mg);
-        second.visit_implicit_pair_blocks(3.0 * b, mg);
+        first.visit_pair_blocks(b, mg);
+        second.visit_pair_blocks(3.0 * b, mg);
       }
       mg.end();
     } while (mg.needs_blocks_again());

@@ -324,7 +324,7 @@ bool AggregationMultigrid::gather(const std::vector<PairBlockSource>& sources) {
   if (!m_built || m_recording || m_cursor != 0) return false;
   m_source_base[0] = 0;
   for (std::size_t f = 0; f < sources.size(); ++f) {
-    const Index count = sources[f].force->implicit_pair_block_count();
+    const Index count = sources[f].blocks->pair_block_count();
     if (count == 0) return false;
     m_source_base[f + 1] = m_source_base[f] + count;
   }
@@ -333,7 +333,7 @@ bool AggregationMultigrid::gather(const std::vector<PairBlockSource>& sources) {
   gather_blocks(m_gather0, m_plan0, m_scale, l1.diag, l1.pair_block, [&](Index k) {
     std::size_t f = 0;
     while (k >= m_source_base[f + 1]) ++f;
-    return sources[f].force->implicit_pair_block(k - m_source_base[f], sources[f].b);
+    return sources[f].blocks->pair_block(k - m_source_base[f], sources[f].b);
   });
   m_cursor = m_plan0.size();
   return true;

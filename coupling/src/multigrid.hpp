@@ -26,7 +26,7 @@
 // as its preconditioner.
 #pragma once
 
-#include "sinew/force.hpp"
+#include "sinew/implicit_blocks.hpp"
 #include "sinew/types.hpp"
 
 #include <Eigen/Cholesky>
@@ -77,13 +77,13 @@ class AggregationMultigrid final : public PairBlockSink {
   void begin(const VectorXd& unknown, const Blocks& diag, double scale);
   /// The forces pass their pair blocks (D + b K+)_ij here, between begin() and end().
   void add(Index i, Index j, const Mat3& block) override;
-  /// A force whose pair blocks reach level 1, with the b its blocks are taken at.
+  /// A force's pair blocks that reach level 1, with the b they are taken at.
   struct PairBlockSource {
-    const Force* force = nullptr;
+    const ImplicitBlocks* blocks = nullptr;
     double b = 0.0;
   };
   /// Instead of the add() calls, between begin() and end(): every level-1 block gathers its terms
-  /// from the forces' implicit_pair_block, in parallel, in the order add() would have received them
+  /// from the forces' ImplicitBlocks::pair_block, in parallel, in the order add() would have received them
   /// (the same sums, bit for bit, on any thread count). sources: the forces that passed pair blocks
   /// when the hierarchy was built, in that order. Returns false, having done nothing, before the
   /// hierarchy exists or when the sources' block counts do not add up to its plan (a force that

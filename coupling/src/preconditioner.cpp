@@ -26,10 +26,11 @@ void Preconditioner::build(const StepModel& model, const std::vector<Mat3>& body
   m_diag_blocks.setZero();
   if (jacobi) {
     m_diag.setZero();
-    for (const auto& f : model.forces) {
-      const double b = implicit_b(*f, k.beta_el);
-      if (!f->add_implicit_diagonal_blocks(b, m_diag_blocks)) f->add_implicit_diagonal(b, m_diag);
-    }
+    for (const auto& f : model.forces)
+      if (const ImplicitBlocks* blocks = f->implicit_blocks()) {
+        const double b = implicit_b(*f, k.beta_el);
+        if (!blocks->add_diagonal_blocks(b, m_diag_blocks)) blocks->add_diagonal(b, m_diag);
+      }
     m_diag_blocks *= h;
     m_diag *= h;
     model.springs.add_diagonal(h, h * k.beta, m_diag);
@@ -79,14 +80,15 @@ void Preconditioner::build_multigrid(const StepModel& model, double h, double be
   m_pair_sources.clear();
   std::size_t counted = 0;
   for (const auto& f : model.forces)
-    if (f->implicit_pair_block_count() > 0) {
-      m_pair_sources.push_back({f.get(), implicit_b(*f, beta_el)});
-      counted += static_cast<std::size_t>(f->implicit_pair_block_count());
+    if (const ImplicitBlocks* blocks = f->implicit_blocks(); blocks && blocks->pair_block_count() > 0) {
+      m_pair_sources.push_back({blocks, implicit_b(*f, beta_el)});
+      counted += static_cast<std::size_t>(blocks->pair_block_count());
     }
   m_multigrid.reserve(counted);
   auto pass = [&] {
     if (!m_multigrid.gather(m_pair_sources))
-      for (const auto& f : model.forces) f->visit_implicit_pair_blocks(implicit_b(*f, beta_el), m_multigrid);
+      for (const auto& f : model.forces)
+        if (const ImplicitBlocks* blocks = f->implicit_blocks()) blocks->visit_pair_blocks(implicit_b(*f, beta_el), m_multigrid);
     m_multigrid.end();
   };
   pass();

@@ -8,6 +8,8 @@
 
 #include <algorithm>
 #include <array>
+#include <iterator>
+#include <span>
 #include <vector>
 
 namespace sinew {
@@ -88,6 +90,27 @@ double sum(Index n, Term&& term) {
 
 }  // namespace parallel
 
+/// Elements whose node lists differ in length, in compressed rows (CSR): element e's nodes are
+/// index[offset[e] .. offset[e + 1]). A meshfree particle's neighbourhood (30-60 nodes, varying per
+/// particle) or a contact's 2-4 nodes, where std::array<Index, K> needs one K for every element.
+struct Stencils {
+  std::vector<Index> offset{0};  ///< size() + 1 entries, offset[0] = 0, non-decreasing
+  std::vector<Index> index;      ///< node indices, offset.back() of them
+
+  Index size() const { return static_cast<Index>(offset.size()) - 1; }
+  /// Appends an element with the given nodes.
+  template <typename Nodes>
+  void push_back(const Nodes& nodes) {
+    index.insert(index.end(), std::begin(nodes), std::end(nodes));
+    offset.push_back(static_cast<Index>(index.size()));
+  }
+  /// Element e's nodes.
+  std::span<const Index> operator[](Index e) const {
+    const auto begin = static_cast<std::size_t>(offset[static_cast<std::size_t>(e)]);
+    return {index.data() + begin, static_cast<std::size_t>(offset[static_cast<std::size_t>(e) + 1]) - begin};
+  }
+};
+
 /// Element loops that add each element's terms straight into its nodes, sequentially within fixed
 /// chunks of consecutive elements. The chunk count depends on the element count alone (never on the
 /// thread count), which keeps the bits the same for any number of threads. With one chunk the terms
@@ -99,6 +122,11 @@ double sum(Index n, Term&& term) {
 /// Otherwise each chunk adds into its own buffer over the node range its elements touch, in
 /// parallel, and the buffers are then added into f in chunk order. One pass over the elements and no
 /// per-element storage (ScatterGather's alternative).
+/// Elements of fixed size (std::array<Index, K>) and of varying size (Stencils) are chunked by the
+/// same rule, by element count: only the node ranges of the chunks depend on the nodes, and run()
+/// never sees an element's size, so a force's scatter reads its own stencils either way. (Chunks of
+/// equal stencil entries would balance uneven stencils better, but would make the chunks of the
+/// fixed-size forces, and with them their sums, depend on a second rule.)
 class ChunkedScatter {
  public:
   struct Chunk {
@@ -110,25 +138,12 @@ class ChunkedScatter {
   /// kMinChunkedElements elements, else up to 8 of at least kMinChunkedElements / 2 (so 2 or 4
   /// threads share them evenly).
   template <std::size_t K>
-  ChunkedScatter(const std::vector<std::array<Index, K>>& elements, Index nodes) : m_nodes(nodes) {
-    const auto count = static_cast<Index>(elements.size());
-    const Index chunks = count < parallel::kMinChunkedElements ? 1 : std::min<Index>(8, std::max<Index>(2, count / (parallel::kMinChunkedElements / 2)));
-    for (Index c = 0; c < chunks; ++c) {
-      Chunk chunk{count * c / chunks, count * (c + 1) / chunks, nodes, 0};
-      for (Index e = chunk.begin; e < chunk.end; ++e)
-        for (Index i : elements[static_cast<std::size_t>(e)]) {
-          chunk.node_begin = std::min(chunk.node_begin, i);
-          chunk.node_end = std::max(chunk.node_end, i + 1);
-        }
-      if (chunk.node_begin > chunk.node_end) chunk.node_begin = chunk.node_end;
-      m_chunks.push_back(chunk);
-    }
-    m_direct = chunks >= 4;
-    for (std::size_t a = 0; a < m_chunks.size(); ++a)
-      for (std::size_t b = a + 2; b < m_chunks.size(); b += 2)
-        if (m_chunks[a].node_begin < m_chunks[b].node_end && m_chunks[b].node_begin < m_chunks[a].node_end) m_direct = false;
-    if (chunks > 1 && !m_direct) m_buffers.assign(static_cast<std::size_t>(chunks), Vectors3::Zero(3, nodes));
-  }
+  ChunkedScatter(const std::vector<std::array<Index, K>>& elements, Index nodes)
+      : ChunkedScatter(static_cast<Index>(elements.size()), nodes,
+                       [&](Index e) -> const std::array<Index, K>& { return elements[static_cast<std::size_t>(e)]; }) {}
+  /// The same for elements of varying size.
+  ChunkedScatter(const Stencils& elements, Index nodes)
+      : ChunkedScatter(elements.size(), nodes, [&](Index e) { return elements[e]; }) {}
   /// The chunks add straight into f, even chunks then odd ones (see above).
   bool direct() const { return m_direct; }
   const std::vector<Chunk>& chunks() const { return m_chunks; }
@@ -167,6 +182,27 @@ class ChunkedScatter {
   }
 
  private:
+  /// count elements, element e's nodes nodes_of(e) (any range of Index).
+  template <typename NodesOf>
+  ChunkedScatter(Index count, Index nodes, NodesOf&& nodes_of) : m_nodes(nodes) {
+    const Index chunks = count < parallel::kMinChunkedElements ? 1 : std::min<Index>(8, std::max<Index>(2, count / (parallel::kMinChunkedElements / 2)));
+    for (Index c = 0; c < chunks; ++c) {
+      Chunk chunk{count * c / chunks, count * (c + 1) / chunks, nodes, 0};
+      for (Index e = chunk.begin; e < chunk.end; ++e)
+        for (Index i : nodes_of(e)) {
+          chunk.node_begin = std::min(chunk.node_begin, i);
+          chunk.node_end = std::max(chunk.node_end, i + 1);
+        }
+      if (chunk.node_begin > chunk.node_end) chunk.node_begin = chunk.node_end;
+      m_chunks.push_back(chunk);
+    }
+    m_direct = chunks >= 4;
+    for (std::size_t a = 0; a < m_chunks.size(); ++a)
+      for (std::size_t b = a + 2; b < m_chunks.size(); b += 2)
+        if (m_chunks[a].node_begin < m_chunks[b].node_end && m_chunks[b].node_begin < m_chunks[a].node_end) m_direct = false;
+    if (chunks > 1 && !m_direct) m_buffers.assign(static_cast<std::size_t>(chunks), Vectors3::Zero(3, nodes));
+  }
+
   std::vector<Chunk> m_chunks;
   mutable std::vector<Vectors3> m_buffers;  // per chunk (more than one, not direct), 3 x nodes
   Index m_nodes = 0;

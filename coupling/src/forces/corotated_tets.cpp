@@ -184,7 +184,8 @@ void CorotatedTets::add_damping_forces(const Vectors3& v, Vectors3& f) const {
 // For vertex a alone moving with v, Fdot = v g_a^T and, with u = R^T v (|u| = |v|),
 //   |Edot|^2 = (|u|^2 |g_a|^2 + (u.g_a)^2) / 2,  tr(Edot) = u.g_a,
 // so the trace of the 3x3 block -D_aa is V_e beta |g_a|^2 (3 mu + mu + lambda), independent of R.
-void CorotatedTets::add_damping_diagonal(VectorXd& diag) const {
+void CorotatedTets::add_diagonal(double b, VectorXd& diag) const {
+  (void)b;  // no definite differential: the implicit matrix is D
   const double beta = m_settings.beta;
   if (beta == 0.0) return;
   const double modulus = 4.0 * m_mu + m_lambda;

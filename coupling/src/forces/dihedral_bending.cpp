@@ -446,8 +446,6 @@ void DihedralBending::add_elastic_differentials(const Vectors3& dx, Vectors3& df
 // Damping is the implicit products with b = 0: f += -c w g (g . v).
 void DihedralBending::add_damping_forces(const Vectors3& v, Vectors3& f) const { add_implicit_products(v, 0.0, f); }
 
-void DihedralBending::add_damping_diagonal(VectorXd& diag) const { add_implicit_diagonal(0.0, diag); }
-
 // f += -(c + 2 b k_b) w g (g . v): damping of the angle's rate plus b K+ v. One pass over the
 // hinges' cached gradients: each hinge's scaled rate -c w (g . v), scattered as rate g_a into its
 // four nodes by fixed chunks of hinges (deterministic on any thread count).
@@ -480,7 +478,7 @@ void DihedralBending::add_implicit_products(const Vectors3& v, double b, Vectors
   });
 }
 
-void DihedralBending::add_implicit_diagonal(double b, VectorXd& diag) const {
+void DihedralBending::add_diagonal(double b, VectorXd& diag) const {
   const double c = m_settings.damping + 2.0 * b * m_settings.stiffness;
   if (c == 0.0) return;
   for (std::size_t h = 0; h < m_hinges.size(); ++h)
@@ -489,7 +487,7 @@ void DihedralBending::add_implicit_diagonal(double b, VectorXd& diag) const {
 }
 
 // The diagonal blocks: c times each node's sum of w g_a g_a^T, cached with the gradients.
-bool DihedralBending::add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const {
+bool DihedralBending::add_diagonal_blocks(double b, Blocks& blocks) const {
   const double c = m_settings.damping + 2.0 * b * m_settings.stiffness;
   if (c == 0.0) return true;
   if (!m_grad_valid) fail("dihedral bending: implicit diagonal blocks need set_implicit(true) or damping first");
@@ -498,7 +496,7 @@ bool DihedralBending::add_implicit_diagonal_blocks(double b, Eigen::Matrix<doubl
 }
 
 // Each hinge couples its four nodes pairwise: -(c + 2 b k_b) w g_a g_b^T for a < b (six pairs).
-bool DihedralBending::visit_implicit_pair_blocks(double b, PairBlockSink& sink) const {
+bool DihedralBending::visit_pair_blocks(double b, PairBlockSink& sink) const {
   const double c = m_settings.damping + 2.0 * b * m_settings.stiffness;
   for (std::size_t h = 0; h < m_hinges.size(); ++h) {
     const Mat34& g = m_grad[h];
@@ -514,7 +512,7 @@ bool DihedralBending::visit_implicit_pair_blocks(double b, PairBlockSink& sink) 
 
 // Block k of the sequence above: hinge k / 6, node pair k % 6 in the order (0,1) (0,2) (0,3) (1,2)
 // (1,3) (2,3), computed as the visit computes it.
-Mat3 DihedralBending::implicit_pair_block(Index k, double b) const {
+Mat3 DihedralBending::pair_block(Index k, double b) const {
   static constexpr Index kFirst[6] = {0, 0, 0, 1, 1, 2}, kSecond[6] = {1, 2, 3, 2, 3, 3};
   const double c = m_settings.damping + 2.0 * b * m_settings.stiffness;
   const auto h = static_cast<std::size_t>(k / 6);

@@ -226,7 +226,9 @@ void EdgeSprings::add_implicit_products(const Vectors3& v, double b, Vectors3& f
   m_chunks.run(f, scatter);
 }
 
-void EdgeSprings::add_implicit_diagonal(double b, VectorXd& diag) const {
+// The diagonal block of both ends is b_d d d^T + b k (d d^T + t+ (I - d d^T)) (see
+// add_diagonal_blocks), whose trace is b_d + b k (1 + 2 t+) for a unit d.
+void EdgeSprings::add_diagonal(double b, VectorXd& diag) const {
   const double bk = b * m_settings.stiffness;
   for (std::size_t e = 0; e < m_edges.size(); ++e) {
     const auto ei = static_cast<Index>(e);
@@ -239,7 +241,7 @@ void EdgeSprings::add_implicit_diagonal(double b, VectorXd& diag) const {
 
 // Both ends' diagonal block is b_d d d^T + b k (d d^T + t+ (I - d d^T)), the edge's implicit
 // product matrix (the product's coupling block is its negative).
-bool EdgeSprings::add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const {
+bool EdgeSprings::add_diagonal_blocks(double b, Blocks& blocks) const {
   if (m_settings.damping + b * m_settings.stiffness == 0.0) return true;
   for (std::size_t e = 0; e < m_edges.size(); ++e) {
     const Mat3 block = implicit_block(static_cast<Index>(e), b);
@@ -258,19 +260,9 @@ Mat3 EdgeSprings::implicit_block(Index e, double b) const {
 }
 
 // The coupling block of edge (i, j) is the edge's implicit product matrix itself (f_i += B (v_j - v_i)).
-bool EdgeSprings::visit_implicit_pair_blocks(double b, PairBlockSink& sink) const {
+bool EdgeSprings::visit_pair_blocks(double b, PairBlockSink& sink) const {
   for (std::size_t e = 0; e < m_edges.size(); ++e) sink.add(m_edges[e][0], m_edges[e][1], implicit_block(static_cast<Index>(e), b));
   return true;
-}
-
-void EdgeSprings::add_damping_diagonal(VectorXd& diag) const {
-  // The diagonal block of both ends is -b d d^T, whose trace is -b for a unit d.
-  const double third = m_settings.damping / 3.0;
-  if (third == 0.0) return;
-  for (const Edge& v : m_edges) {
-    diag[v[0]] += third;
-    diag[v[1]] += third;
-  }
 }
 
 // Block Gershgorin on M^-1 K with K the material stiffness k d d^T per spring (the transverse

@@ -166,7 +166,8 @@ void TriangleMembrane::add_damping_forces(const Vectors3& v, Vectors3& f) const 
 // For vertex a alone moving with v, Fdot = v g_a^T and, with u = F^T v,
 //   |Edot|^2 = (|u|^2 |g_a|^2 + (u.g_a)^2) / 2,  tr(Edot) = u.g_a,
 // so the trace of the 3x3 block -D_aa is A beta (mu |g_a|^2 |F|_F^2 + (mu + lambda) |F g_a|^2).
-void TriangleMembrane::add_damping_diagonal(VectorXd& diag) const {
+void TriangleMembrane::add_diagonal(double b, VectorXd& diag) const {
+  (void)b;  // no definite differential: the implicit matrix is D
   const double beta = m_settings.beta;
   if (beta == 0.0) return;
   const double mu = m_settings.mu;

@@ -14,7 +14,7 @@ struct CorotatedTetsSettings {
   double beta = 0.0;             ///< stiffness-proportional (strain-rate) damping time [s]; finite, >= 0
 };
 
-class CorotatedTets final : public Force {
+class CorotatedTets final : public Force, public ImplicitBlocks {
  public:
   using Tet = std::array<Index, 4>;
 
@@ -30,9 +30,11 @@ class CorotatedTets final : public Force {
   void add_elastic_forces(const Vectors3& x, Vectors3& f) const override;
   void add_elastic_differentials(const Vectors3& dx, Vectors3& df) const override;
   void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
-  void add_damping_diagonal(VectorXd& diag) const override;
   bool has_damping() const override { return m_settings.beta > 0.0; }
   double stable_dt(const VectorXd& m_eff) const override;
+  /// The scalar diagonal of D only (no definite differential, so b is 0): no 3x3 or pair blocks.
+  const ImplicitBlocks* implicit_blocks() const override { return this; }
+  void add_diagonal(double b, VectorXd& diag) const override;
 
   const std::vector<Tet>& tets() const { return m_tets; }
   const std::vector<double>& rest_volumes() const { return m_volume; }

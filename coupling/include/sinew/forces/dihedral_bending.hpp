@@ -33,7 +33,7 @@ struct DihedralBendingSettings {
 /// n2 = (x3 - x0) x e, theta = atan2((n1 x n2) . e / |e|, n1 . n2) in (-pi, pi]. theta = 0 when
 /// flat; theta = a when the wing of x3 is rotated by a about e, right-handed; theta > 0 when x3
 /// lies on the side of triangle 1 opposite to n1 (the sheet folds away from n1).
-class DihedralBending final : public Force {
+class DihedralBending final : public Force, public ImplicitBlocks {
  public:
   /// (x0, x1): shared edge; x2: opposite vertex in the first triangle; x3: in the second.
   using Hinge = std::array<Index, 4>;
@@ -59,17 +59,18 @@ class DihedralBending final : public Force {
   void add_elastic_forces(const Vectors3& x, Vectors3& f) const override;
   void add_elastic_differentials(const Vectors3& dx, Vectors3& df) const override;
   void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
-  void add_damping_diagonal(VectorXd& diag) const override;
   bool has_damping() const override { return m_settings.damping > 0.0; }
   bool has_definite_differentials() const override { return m_settings.implicit; }
   void set_implicit(bool implicit) override { m_implicit = implicit; }
   void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
-  void add_implicit_diagonal(double b, VectorXd& diag) const override;
-  bool add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const override;
-  bool visit_implicit_pair_blocks(double b, PairBlockSink& sink) const override;
-  Index implicit_pair_block_count() const override { return 6 * static_cast<Index>(m_hinges.size()); }
-  Mat3 implicit_pair_block(Index k, double b) const override;
   double stable_dt(const VectorXd& m_eff) const override;
+  /// Every block: scalar and 3x3 diagonal, six pair blocks per hinge one at a time.
+  const ImplicitBlocks* implicit_blocks() const override { return this; }
+  void add_diagonal(double b, VectorXd& diag) const override;
+  bool add_diagonal_blocks(double b, Blocks& blocks) const override;
+  bool visit_pair_blocks(double b, PairBlockSink& sink) const override;
+  Index pair_block_count() const override { return 6 * static_cast<Index>(m_hinges.size()); }
+  Mat3 pair_block(Index k, double b) const override;
 
   const std::vector<Hinge>& hinges() const { return m_hinges; }
   const std::vector<double>& rest_angles() const { return m_rest_angle; }

@@ -15,7 +15,7 @@ struct EdgeSpringsSettings {
 };
 
 /// Springs Psi = k/2 (l - l0)^2 on edges (i, j), with l0 taken from the rest positions.
-class EdgeSprings final : public Force {
+class EdgeSprings final : public Force, public ImplicitBlocks {
  public:
   using Edge = std::array<Index, 2>;
 
@@ -30,16 +30,17 @@ class EdgeSprings final : public Force {
   void add_elastic_forces(const Vectors3& x, Vectors3& f) const override;
   void add_elastic_differentials(const Vectors3& dx, Vectors3& df) const override;
   void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
-  void add_damping_diagonal(VectorXd& diag) const override;
   bool has_damping() const override { return m_settings.damping > 0.0; }
   bool has_definite_differentials() const override { return true; }
   void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
-  void add_implicit_diagonal(double b, VectorXd& diag) const override;
-  bool add_implicit_diagonal_blocks(double b, Eigen::Matrix<double, 9, Eigen::Dynamic>& blocks) const override;
-  bool visit_implicit_pair_blocks(double b, PairBlockSink& sink) const override;
-  Index implicit_pair_block_count() const override { return static_cast<Index>(m_edges.size()); }
-  Mat3 implicit_pair_block(Index k, double b) const override { return implicit_block(k, b); }
   double stable_dt(const VectorXd& m_eff) const override;
+  /// Every block: scalar and 3x3 diagonal, pair blocks one edge at a time.
+  const ImplicitBlocks* implicit_blocks() const override { return this; }
+  void add_diagonal(double b, VectorXd& diag) const override;
+  bool add_diagonal_blocks(double b, Blocks& blocks) const override;
+  bool visit_pair_blocks(double b, PairBlockSink& sink) const override;
+  Index pair_block_count() const override { return static_cast<Index>(m_edges.size()); }
+  Mat3 pair_block(Index k, double b) const override { return implicit_block(k, b); }
 
   const std::vector<Edge>& edges() const { return m_edges; }
   const VectorXd& rest_lengths() const { return m_rest_length; }

@@ -17,7 +17,7 @@ struct TriangleMembraneSettings {
   double beta = 0.0;      ///< stiffness-proportional (strain-rate) damping time [s]; finite, >= 0
 };
 
-class TriangleMembrane final : public Force {
+class TriangleMembrane final : public Force, public ImplicitBlocks {
  public:
   using Triangle = std::array<Index, 3>;
 
@@ -33,9 +33,11 @@ class TriangleMembrane final : public Force {
   void add_elastic_forces(const Vectors3& x, Vectors3& f) const override;
   void add_elastic_differentials(const Vectors3& dx, Vectors3& df) const override;
   void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
-  void add_damping_diagonal(VectorXd& diag) const override;
   bool has_damping() const override { return m_settings.beta > 0.0; }
   double stable_dt(const VectorXd& m_eff) const override;
+  /// The scalar diagonal of D only (no definite differential, so b is 0): no 3x3 or pair blocks.
+  const ImplicitBlocks* implicit_blocks() const override { return this; }
+  void add_diagonal(double b, VectorXd& diag) const override;
 
   const std::vector<Triangle>& triangles() const { return m_triangles; }
   const std::vector<double>& rest_areas() const { return m_area; }
