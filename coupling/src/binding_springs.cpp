@@ -18,11 +18,13 @@ Index BindingSprings::add(const BindingSpringSettings& s) {
   m_k_active.push_back(s.stiffness);
   m_c_active.push_back(0.0);
   m_active.push_back(true);
+  m_removed.push_back(false);
   return id;
 }
 
 void BindingSprings::set_damping_from_masses(const VectorXd& inverse_effective_mass) {
   for (Index s = 0; s < size(); ++s) {
+    if (m_removed[s]) continue;
     const double inverse_mu = inverse_effective_mass[m_a[s]] + inverse_effective_mass[m_b[s]];
     if (!(inverse_mu > 0.0)) fail("binding spring ", s, " connects two points of infinite mass");
     m_c[s] = 2.0 * m_zeta[s] * std::sqrt(m_k[s] / inverse_mu);

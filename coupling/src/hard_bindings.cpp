@@ -30,16 +30,12 @@ void HardBindings::add_rigid(Index particle, Index body, const Vec3& r0) {
 }
 
 bool HardBindings::remove(Index particle) {
-  for (Index k = 0; k < m_linear.size(); ++k)
-    if (m_linear.particle(k) == particle) {
-      m_linear.remove(k);
-      return true;
-    }
-  for (Index k = 0; k < m_rigid.size(); ++k)
-    if (m_rigid.particle(k) == particle) {
-      m_rigid.remove(k);
-      return true;
-    }
+  for (BindingKind* kind : mutable_kinds())
+    for (Index k = 0; k < kind->size(); ++k)
+      if (kind->particle(k) == particle) {
+        kind->remove(k);
+        return true;
+      }
   return false;
 }
 
@@ -53,8 +49,9 @@ void HardBindings::rebuild_lookup(Index particle_count) {
     m_kind_of[particle] = static_cast<std::int8_t>(kind);
     m_index_in_kind[particle] = k;
   };
-  for (Index k = 0; k < m_linear.size(); ++k) mark(0, k, m_linear.particle(k), m_linear.id(k));
-  for (Index k = 0; k < m_rigid.size(); ++k) mark(1, k, m_rigid.particle(k), m_rigid.id(k));
+  const auto all = kinds();
+  for (std::size_t kind = 0; kind < all.size(); ++kind)
+    for (Index k = 0; k < all[kind]->size(); ++k) mark(static_cast<int>(kind), k, all[kind]->particle(k), all[kind]->id(k));
 }
 
 void HardBindings::flatten(Index particle_count, Index rigid_count) {
@@ -97,6 +94,9 @@ void HardBindings::flatten(Index particle_count, Index rigid_count) {
           expanded = true;
           for (std::size_t i = 0; i < m_linear.parents(code).size(); ++i)
             next.push_back({m_linear.parents(code)[i], t.weight * m_linear.weights(code)[i]});
+        } else if (kind != 1) {
+          fail("binding ", id, ": parent ", t.parent, " is a ", kinds()[static_cast<std::size_t>(kind)]->name(),
+               ", which cannot be the parent of an embedded point");
         } else {
           if (rigid_body_of_chain >= 0 && rigid_body_of_chain != m_rigid.body(code))
             fail("binding ", id, ": parents lie on different rigid bodies (", rigid_body_of_chain, " and ", m_rigid.body(code), ")");
@@ -134,8 +134,7 @@ void HardBindings::flatten(Index particle_count, Index rigid_count) {
 }
 
 void HardBindings::update_rigid_offsets(const RigidBodyParticles& bodies) {
-  m_linear.update_offsets(bodies);
-  m_rigid.update_offsets(bodies);
+  for (BindingKind* kind : mutable_kinds()) kind->update_offsets(bodies);
 }
 
 void HardBindings::clamp_positions(Vectors3& x, const Vectors3& body_x) const {
@@ -202,7 +201,7 @@ void HardBindings::push_drift(Index particle, const Vec3& dx, const Vec3& dv, Pa
                               const VectorXd& effective_mass, Vectors3& L_n) {
   if (kind_of(particle) != nullptr) {
     const int kind = m_kind_of[particle];
-    mutable_kind(kind)->push_drift(m_index_in_kind[particle], dx, dv, effective_mass[particle], p, bodies, L_n);
+    mutable_kinds()[static_cast<std::size_t>(kind)]->push_drift(m_index_in_kind[particle], dx, dv, effective_mass[particle], p, bodies, L_n);
     return;
   }
   if (p.kind[particle] == ParticleKind::kinematic) return;  // a prescribed target cannot move

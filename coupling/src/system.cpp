@@ -49,12 +49,12 @@ void System::require_finalized(const char* what) const {
   if (!m_finalized) fail(what, ": finalize the system first (masses are set up there)");
 }
 
-void System::require_not_finalized(const char* what) const {
-  if (m_finalized) fail("cannot ", what, " after the system is finalized (its first step)");
+void System::note_topology_change() {
+  if (m_finalized) m_topology_changed = true;
 }
 
 Index System::add_particle(const Vec3& x, const Vec3& v, double mass) {
-  require_not_finalized("add a particle");
+  note_topology_change();
   const Index i = m_particles.size();
   if (!all_finite(x) || !all_finite(v)) fail("particle ", i, ": position or velocity is not finite");
   if (!(std::isfinite(mass) && mass >= 0.0)) fail("particle ", i, ": mass ", mass, " must be non-negative and finite");
@@ -79,25 +79,106 @@ Index System::add_kinematic_particle(const Vec3& x, const Vec3& v) {
 }
 
 Index System::add_rigid_body(const RigidBodySettings& settings) {
-  require_not_finalized("add a rigid body");
+  note_topology_change();
   return sinew::add_rigid_body(m_bodies, settings);
 }
 
-void System::allow_binding_change(bool rigid) {
-  if (!m_finalized) return;
-  if (m_settings.absorb_bound_mass_into_rigid_bodies && (rigid || m_hard.rigid_count() > 0))
-    fail("hard bindings cannot change after set-up while points on rigid frames have their mass merged into the bodies "
-         "(SystemSettings::absorb_bound_mass_into_rigid_bodies)");
-  m_topology_changed = true;
+bool System::unbind(Index particle) {
+  note_topology_change();
+  return m_hard.remove(particle);
 }
 
-bool System::unbind(Index particle) {
-  allow_binding_change(m_hard.on_rigid_frame(particle));
-  return m_hard.remove(particle);
+void System::remove_particles(std::span<const Index> particles) {
+  const Index n = m_particles.size();
+  std::vector<std::uint8_t> removed(static_cast<std::size_t>(n), 0);
+  for (Index i : particles) {
+    if (i < 0 || i >= n) fail("remove_particles: particle ", i, " does not exist (there are ", n, ")");
+    if (m_input_kind[i] == ParticleKind::removed) fail("remove_particles: particle ", i, " was removed already");
+    removed[static_cast<std::size_t>(i)] = 1;
+  }
+  // Checked before anything changes: a removed parent would leave its bound points with no state.
+  const LinearBindings& linear = m_hard.linear();
+  for (Index k = 0; k < linear.size(); ++k)
+    for (Index parent : linear.parents(k))
+      if (removed[static_cast<std::size_t>(parent)] && !removed[static_cast<std::size_t>(linear.particle(k))])
+        fail("remove_particles: particle ", parent, " is a parent of hard-bound particle ", linear.particle(k),
+             "; unbind or remove that point first");
+  remove_elements_of(removed);
+  for (Index i : particles) {
+    m_hard.remove(i);
+    m_input_kind[i] = ParticleKind::removed;
+    m_input_mass[i] = 0.0;
+    m_particles.kind[i] = ParticleKind::removed;
+    m_particles.v.col(i).setZero();
+  }
+  for (Index k = m_soft.size() - 1; k >= 0; --k)
+    if (removed[static_cast<std::size_t>(m_soft.particle[k])] || removed[static_cast<std::size_t>(m_soft.target[k])]) remove_soft_binding(k);
+  for (Index s = 0; s < m_springs.size(); ++s)
+    if (!m_springs.removed(s) && (removed[static_cast<std::size_t>(m_springs.a(s))] || removed[static_cast<std::size_t>(m_springs.b(s))]))
+      m_springs.remove(s);
+  auto& triangles = m_geometry.triangles;
+  triangles.erase(std::remove_if(triangles.begin(), triangles.end(),
+                                 [&](const std::array<Index, 3>& t) {
+                                   return removed[static_cast<std::size_t>(t[0])] || removed[static_cast<std::size_t>(t[1])] ||
+                                          removed[static_cast<std::size_t>(t[2])];
+                                 }),
+                  triangles.end());
+  auto& segments = m_geometry.segments;
+  segments.erase(std::remove_if(segments.begin(), segments.end(),
+                                [&](const std::array<Index, 2>& e) {
+                                  return removed[static_cast<std::size_t>(e[0])] || removed[static_cast<std::size_t>(e[1])];
+                                }),
+                 segments.end());
+  note_topology_change();
+}
+
+void System::remove_elements_touching(std::span<const Index> particles) {
+  const Index n = m_particles.size();
+  std::vector<std::uint8_t> removed(static_cast<std::size_t>(n), 0);
+  for (Index i : particles) {
+    if (i < 0 || i >= n) fail("remove_elements_touching: particle ", i, " does not exist (there are ", n, ")");
+    removed[static_cast<std::size_t>(i)] = 1;
+  }
+  remove_elements_of(removed);
+  note_topology_change();
+}
+
+void System::remove_elements_of(std::span<const std::uint8_t> removed) {
+  for (const auto& f : m_forces)
+    if (!f->can_remove_elements())
+      fail(f->name(), ": cannot remove elements (it does not implement Force::remove_elements_touching); nothing was removed");
+  for (const auto& f : m_forces) f->remove_elements_touching(removed);
+  m_force_stable_dt.clear();
+}
+
+void System::remove_soft_binding(Index soft) {
+  if (soft < 0 || soft >= m_soft.size()) fail("soft binding ", soft, " does not exist (there are ", m_soft.size(), ")");
+  if (m_soft.spring[soft] >= 0) m_springs.remove(m_soft.spring[soft]);
+  for (auto* list : {&m_soft.particle, &m_soft.target, &m_soft.spring}) list->erase(list->begin() + soft);
+  m_soft.coupling.erase(m_soft.coupling.begin() + soft);
+  m_soft.mass_override.erase(m_soft.mass_override.begin() + soft);
+  note_topology_change();
+}
+
+void System::remove_binding_spring(Index spring) {
+  if (spring < 0 || spring >= m_springs.size()) fail("binding spring ", spring, " does not exist");
+  for (Index k = 0; k < m_soft.size(); ++k)
+    if (m_soft.spring[k] == spring) fail("binding spring ", spring, " belongs to soft binding ", k, "; remove that instead");
+  m_springs.remove(spring);
+  note_topology_change();
+}
+
+void System::remove_force(const Force& force) {
+  const auto found = std::find_if(m_forces.begin(), m_forces.end(), [&](const auto& f) { return f.get() == &force; });
+  if (found == m_forces.end()) fail("remove_force: ", force.name(), " is not a force of this system");
+  m_forces.erase(found);
+  m_force_stable_dt.clear();
+  note_topology_change();
 }
 
 void System::set_binding_spring_active(Index spring, bool active) {
   if (spring < 0 || spring >= m_springs.size()) fail("binding spring ", spring, " does not exist");
+  if (m_springs.removed(spring)) fail("binding spring ", spring, " was removed");
   m_springs.set_active(spring, active);
 }
 
@@ -112,14 +193,14 @@ Vec3 System::hard_binding_force(Index particle) const {
 }
 
 Index System::bind_linear(Index particle, std::span<const Index> parents, std::span<const double> weights) {
-  allow_binding_change(false);
+  note_topology_change();
   const Index id = m_hard.size();
   m_hard.add_linear(particle, parents, weights);
   return id;
 }
 
 Index System::bind_rigid(Index particle, Index body, const Vec3& r0) {
-  allow_binding_change(true);
+  note_topology_change();
   const Index id = m_hard.size();
   m_hard.add_rigid(particle, body, r0);
   return id;
@@ -133,7 +214,7 @@ Index System::bind_rigid_here(Index particle, Index body) {
 }
 
 Index System::add_embedded_point(std::span<const Index> parents, std::span<const double> weights) {
-  require_not_finalized("add an embedded point");
+  note_topology_change();
   const Index point = m_particles.size();
   if (parents.size() != weights.size())
     fail("embedded point ", point, ": ", parents.size(), " parents but ", weights.size(), " weights");
@@ -149,7 +230,7 @@ Index System::add_embedded_point(std::span<const Index> parents, std::span<const
 }
 
 Index System::add_soft_binding(const SoftBindingSettings& s) {
-  require_not_finalized("add a soft binding");
+  note_topology_change();
   const Index id = m_soft.size();
   if (!(std::isfinite(s.mass) && s.mass >= 0.0)) fail("soft binding ", id, ": mass ", s.mass, " must be non-negative and finite");
   if (s.particle == s.target) fail("soft binding ", id, ": particle ", s.particle, " is its own target");
@@ -170,7 +251,7 @@ Index System::add_soft_binding(const SoftBindingSettings& s) {
 }
 
 Index System::add_binding_spring(const BindingSpringSettings& settings) {
-  require_not_finalized("add a binding spring");
+  note_topology_change();
   return m_springs.add(settings);
 }
 
@@ -230,7 +311,7 @@ void System::set_joint_rows(std::vector<JointRow> rows) {
 }
 
 void System::add_force_impl(std::unique_ptr<Force> force) {
-  require_not_finalized("add a force");
+  note_topology_change();
   if (!force) fail("add_force: null force");
   force->validate(m_particles.size());
   m_forces.push_back(std::move(force));
@@ -239,6 +320,9 @@ void System::add_force_impl(std::unique_ptr<Force> force) {
 void System::finalize() {
   if (m_finalized && !m_topology_changed) return;
   const Index n = m_particles.size();
+  // Bindings may have changed: bodies give back the masses merged into them, which are merged again
+  // below from the bindings as they are now.
+  m_hard.release_masses_from_bodies(m_bodies);
   m_force_stable_dt.clear();  // effective masses change below
   m_hard.flatten(n, m_bodies.size());
 
@@ -249,6 +333,7 @@ void System::finalize() {
     for (Index k = 0; k < binding->size(); ++k) {
       const Index p = binding->particle(k);
       if (kind[p] == ParticleKind::kinematic) fail("particle ", p, " is kinematic and cannot be hard-bound");
+      if (kind[p] == ParticleKind::removed) fail("particle ", p, " was removed and cannot be hard-bound");
       kind[p] = ParticleKind::hard_bound;
     }
   std::vector<std::uint8_t> is_soft(static_cast<std::size_t>(n), 0);
@@ -256,16 +341,20 @@ void System::finalize() {
     const Index p = m_soft.particle[s], t = m_soft.target[s];
     if (p < 0 || p >= n) fail("soft binding ", s, ": particle ", p, " out of range [0, ", n, ")");
     if (t < 0 || t >= n) fail("soft binding ", s, ": target ", t, " out of range [0, ", n, ")");
-    if (kind[p] != ParticleKind::free) fail("soft binding ", s, ": particle ", p, " is already kinematic or bound");
+    if (kind[p] != ParticleKind::free) fail("soft binding ", s, ": particle ", p, " is already kinematic, bound or removed");
+    if (kind[t] == ParticleKind::removed) fail("soft binding ", s, ": target ", t, " was removed");
     if (is_soft[p]) fail("soft binding ", s, ": particle ", p, " is soft-bound twice");
     is_soft[p] = 1;
     kind[p] = m_soft.coupling[s] == SoftCoupling::spring ? ParticleKind::soft_spring : ParticleKind::soft_synchronized;
   }
   for (Index s = 0; s < m_soft.size(); ++s)
     if (is_soft[m_soft.target[s]]) fail("soft binding ", s, ": target ", m_soft.target[s], " is itself soft-bound");
-  for (Index s = 0; s < m_springs.size(); ++s)
-    if (m_springs.a(s) >= n || m_springs.b(s) >= n)
-      fail("binding spring ", s, ": endpoint out of range [0, ", n, ")");
+  for (Index s = 0; s < m_springs.size(); ++s) {
+    if (m_springs.removed(s)) continue;
+    if (m_springs.a(s) >= n || m_springs.b(s) >= n) fail("binding spring ", s, ": endpoint out of range [0, ", n, ")");
+    if (kind[m_springs.a(s)] == ParticleKind::removed || kind[m_springs.b(s)] == ParticleKind::removed)
+      fail("binding spring ", s, ": an end was removed");
+  }
 
   // Masses (section 2): m = W^T m_bar. Points on rigid frames join their body; points embedded in
   // particles pass w_i m_bar to each parent (weight w, not w^2: momentum P = m_bar^T W v).

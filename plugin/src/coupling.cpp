@@ -98,7 +98,6 @@ void Coupling::follow_bodies() {
 Index Coupling::rigid_particle(btRigidBody* body) {
   if (!body) fail("bullet coupling: rigid body is null");
   if (const auto found = m_rigid_particles.find(body); found != m_rigid_particles.end()) return found->second;
-  if (m_system.finalized()) fail("bullet coupling: a new rigid body cannot join after the first tick");
   const btTransform& frame = body->getCenterOfMassTransform();
   RigidBodySettings s;
   s.x = to_eigen(frame.getOrigin());

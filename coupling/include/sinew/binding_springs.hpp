@@ -39,6 +39,12 @@ class BindingSprings {
 
   /// Switches a spring off (it then exerts nothing) or back on.
   void set_active(Index s, bool active) { m_k_active[s] = active ? m_k[s] : 0.0, m_c_active[s] = active ? m_c[s] : 0.0, m_active[s] = active; }
+  /// Switches a spring off for good: its index stays reserved, its ends are no longer checked or used.
+  void remove(Index s) {
+    set_active(s, false);
+    m_removed[s] = true;
+  }
+  bool removed(Index s) const { return m_removed[s]; }
   bool active(Index s) const { return m_active[s]; }
   void set_ends(Index s, Index a, Index b) { m_a[s] = a, m_b[s] = b; }
   /// The force on end a, -k (x_a - x_b) - c (v_a - v_b); end b carries its opposite.
@@ -63,6 +69,7 @@ class BindingSprings {
   std::vector<double> m_k, m_zeta, m_c;
   std::vector<double> m_k_active, m_c_active;  // k and c, or 0 while switched off
   std::vector<bool> m_active;
+  std::vector<bool> m_removed;
 };
 
 }  // namespace sinew

@@ -10,7 +10,10 @@
 //                      and external accelerations;
 //   soft_synchronized  a copy of its target, overwritten at fixed points of the step and whose drift
 //                      (from collisions) is pushed back to the target's parents (section 3.1): no
-//                      unknowns.
+//                      unknowns;
+//   removed            taken out of the simulation between steps (System::remove_particles): no mass,
+//                      no unknowns, no forces, state frozen; its index stays reserved so that the
+//                      indices an application holds keep their meaning.
 //
 // Rigid-body particles are rows of a second structure-of-arrays (x_c, q, v_c, w: one column per
 // body). A dynamic body has 6 unknowns, its twist (v_c, w), with mass block diag(m I, R I0 R^T)
@@ -28,7 +31,7 @@
 
 namespace sinew {
 
-enum class ParticleKind : std::uint8_t { free, kinematic, hard_bound, soft_spring, soft_synchronized };
+enum class ParticleKind : std::uint8_t { free, kinematic, hard_bound, soft_spring, soft_synchronized, removed };
 
 /// True for rows whose velocity is an unknown of the implicit solves.
 inline bool is_dynamic(ParticleKind kind) {

@@ -18,6 +18,8 @@
 #include "sinew/implicit_blocks.hpp"
 #include "sinew/types.hpp"
 
+#include <cstdint>
+#include <span>
 #include <string_view>
 
 namespace sinew {
@@ -68,6 +70,14 @@ class Force {
   /// True when add_damping_forces adds anything; a scene whose forces all return false and that
   /// has no binding springs runs no linear solve at all.
   virtual bool has_damping() const { return false; }
+
+  /// Topology change between steps (System::remove_particles, System::remove_elements_touching):
+  /// drops every element with a node whose flag in `removed` (one per particle) is set, leaving the
+  /// force exactly as if it had been built without those elements (the same rest data, the same
+  /// order of sums). Returns how many it dropped. Only called when can_remove_elements(); the
+  /// default throws.
+  virtual Index remove_elements_touching(std::span<const std::uint8_t> removed);
+  virtual bool can_remove_elements() const { return false; }
 
   /// Largest step for which the explicit treatment of this elastic force stays stable, from the
   /// stiffest element and the lightest particle it touches (masses m, infinite for kinematic or

@@ -9,8 +9,10 @@
 // never itself bound once flatten() has run (T-junctions on refined edges, points on points of a
 // rigid frame), so W and W^T are single passes in list order.
 //
-// Adding a kind: its class under sinew/bindings/ (and src/bindings/), a member here and its entry
-// in kinds().
+// Adding a kind: its class under sinew/bindings/ (and src/bindings/), a member here with its entries
+// in kinds() and mutable_kinds(), an add_* here and a System::bind_* that creates its bindings.
+// flatten() resolves chains through the two built-in kinds only: a point of another kind cannot be
+// the parent of a linear binding (flatten says so by name) unless flatten learns to expand it.
 #pragma once
 
 #include "sinew/bindings/linear_bindings.hpp"
@@ -47,7 +49,11 @@ class HardBindings {
 
   Index linear_count() const { return m_linear.size(); }
   Index rigid_count() const { return m_rigid.size(); }
-  Index size() const { return linear_count() + rigid_count(); }
+  Index size() const {
+    Index count = 0;
+    for (const BindingKind* kind : kinds()) count += kind->size();
+    return count;
+  }
   Index linear_particle(Index k) const { return m_linear.particle(k); }
   std::span<const Index> linear_parents(Index k) const { return m_linear.parents(k); }
   std::span<const double> linear_weights(Index k) const { return m_linear.weights(k); }
@@ -84,6 +90,8 @@ class HardBindings {
   void inverse_effective_masses(const VectorXd& mass, const RigidBodyParticles& bodies, VectorXd& inverse_mass) const;
   /// Merges the points' masses into their rigid bodies (RigidBindings::absorb_masses).
   void absorb_masses_into_bodies(const VectorXd& mass, RigidBodyParticles& bodies) { m_rigid.absorb_masses(mass, bodies); }
+  /// Takes them out again (RigidBindings::release_masses), before bindings change.
+  void release_masses_from_bodies(RigidBodyParticles& bodies) { m_rigid.release_masses(bodies); }
   /// Largest |x_e - W x_parents| over every binding.
   double max_drift(const Vectors3& x, const RigidBodyParticles& bodies) const;
   /// out.col(i) = (add ? out.col(i) : 0) + f.col(i) on every bound row i (the forces bindings carry).
@@ -109,7 +117,7 @@ class HardBindings {
     if (particle < 0 || particle >= static_cast<Index>(m_kind_of.size()) || m_kind_of[particle] < 0) return nullptr;
     return kinds()[static_cast<std::size_t>(m_kind_of[particle])];
   }
-  BindingKind* mutable_kind(int kind) { return kind == 0 ? static_cast<BindingKind*>(&m_linear) : &m_rigid; }
+  std::array<BindingKind*, 2> mutable_kinds() { return {&m_linear, &m_rigid}; }
   void rebuild_lookup(Index particle_count);
 
   LinearBindings m_linear;

@@ -1,11 +1,18 @@
 // sinew::System: particles, rigid-body particles, bindings and forces, advanced by the semi-implicit
 // Newmark step of Sifakis et al. 2007 (section 3.3) with rigid bodies as 6-DOF parents (section 5).
 //
-// Set-up: add particles, rigid bodies, hard bindings, soft bindings, binding springs and forces;
-// every call validates its input and throws sinew::Error naming the bad item. The first step (or an
-// explicit finalize()) resolves binding chains, passes masses to parents (m = W^T m_bar), computes
-// effective masses and binding-spring damping. After that the topology is fixed and the step
-// allocates nothing.
+// Set-up: add particles, rigid bodies, hard bindings, soft bindings, binding springs, forces and
+// collision sources; every call validates its input and throws sinew::Error naming the bad item.
+// The first step (or an explicit finalize()) resolves binding chains, passes masses to parents
+// (m = W^T m_bar), computes effective masses and binding-spring damping.
+//
+// Topology may change between steps: particles, rigid bodies, bindings, soft bindings, binding
+// springs, forces and collision sources can be added, and particles, soft bindings, binding springs,
+// forces and elements removed. The next step sets everything up again from the changed model (the
+// same next step, bit for bit, as a system built from scratch in that state). Removal keeps indices:
+// a removed particle keeps its index (ParticleKind::removed), a removed binding spring its index;
+// soft bindings and forces are taken out of their lists. A step that follows no change allocates
+// nothing; a change may.
 #pragma once
 
 #include "sinew/binding_springs.hpp"
@@ -168,6 +175,24 @@ class System {
   /// The force a hard-bound point passed to its parents (through W^T) in the last step's second solve:
   /// what its elements and springs pulled it with, which the binding carried.
   Vec3 hard_binding_force(Index particle) const;
+  // ---- topology changes between steps (see the top of this file) -------------------------------
+  /// Takes particles out of the simulation: each becomes ParticleKind::removed (no mass, no unknowns,
+  /// its state frozen, its index reserved), leaving its hard binding, the soft bindings it is part
+  /// of, the binding springs it ends and every force element it is a node of (Force::
+  /// remove_elements_touching), and the collision surface triangles it is a vertex of. Throws naming
+  /// the item, changing nothing, when a particle does not exist, was removed already, or is a parent
+  /// of a hard binding (unbind or remove that point first).
+  void remove_particles(std::span<const Index> particles);
+  /// Drops every force element with a node in `particles`, keeping the particles (cutting).
+  void remove_elements_touching(std::span<const Index> particles);
+  /// Removes soft binding `soft` (and its binding spring): its particle becomes free with the mass it
+  /// was created with. Later soft bindings' indices move down by one.
+  void remove_soft_binding(Index soft);
+  /// Removes a binding spring for good; its index stays reserved (and the spring inactive).
+  void remove_binding_spring(Index spring);
+  /// Removes a force added with add_force (references to it become invalid).
+  void remove_force(const Force& force);
+
   /// Adds a force; validates its indices now.
   template <typename F>
   F& add_force(std::unique_ptr<F> force) {
@@ -245,10 +270,11 @@ class System {
 
  private:
   void add_force_impl(std::unique_ptr<Force> force);
-  void require_not_finalized(const char* what) const;
+  /// Marks that the topology changed after set-up: the next step (or finalize()) sets it up again.
+  void note_topology_change();
+  /// Every force drops the elements with a node flagged in `removed`.
+  void remove_elements_of(std::span<const std::uint8_t> removed);
   void require_finalized(const char* what) const;
-  /// Bindings may change after set-up unless rigid-frame masses were merged into bodies.
-  void allow_binding_change(bool rigid);
   void compute_effective_masses();
 
   SystemSettings m_settings;
@@ -267,7 +293,7 @@ class System {
   VectorXd m_effective_mass;          // per row, +inf for kinematic, m_e for bound rows
   std::vector<double> m_force_stable_dt;  // Force::stable_dt per force at these masses (stable_dt())
   bool m_finalized = false;
-  bool m_topology_changed = false;        // bindings changed since set-up: redo it before the next step
+  bool m_topology_changed = false;        // the topology changed since set-up: redo it before the next step
   std::vector<ParticleKind> m_input_kind;  // free or kinematic, as created
   double m_time = 0.0;
   std::unique_ptr<Newmark> m_newmark;

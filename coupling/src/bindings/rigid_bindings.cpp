@@ -47,12 +47,30 @@ void RigidBindings::absorb_masses(const VectorXd& mass, RigidBodyParticles& bodi
     const Vec3 w = bodies.w.col(b);
     for (Index k = 0; k < size(); ++k)
       if (m_body[k] == b) m_r0[k] = q_new.conjugate() * (c0 + offset_world(k) - c);
+    const Quat q_merged = q_new.normalized();
+    m_absorbed.push_back({b, m0, bodies.inertia.col(b), q_merged.conjugate() * (c0 - c), q_merged.conjugate() * bodies.q[b]});
     bodies.v.col(b) += w.cross(c - c0);
     bodies.x.col(b) = c;
-    bodies.q[b] = q_new.normalized();
+    bodies.q[b] = q_merged;
     bodies.mass[b] = total;
     bodies.inertia.col(b) = eig.eigenvalues();
   }
+}
+
+void RigidBindings::release_masses(RigidBodyParticles& bodies) {
+  for (const Absorbed& a : m_absorbed) {
+    const Index b = a.body;
+    const Vec3 r = bodies.q[b] * a.d;  // the body's own centre of mass, from the merged one
+    bodies.v.col(b) += Vec3(bodies.w.col(b)).cross(r);
+    bodies.x.col(b) += r;
+    const Quat q_own = (bodies.q[b] * a.q_rel).normalized();
+    for (Index k = 0; k < size(); ++k)
+      if (m_body[k] == b) m_r0[k] = a.q_rel.conjugate() * (m_r0[k] - a.d);
+    bodies.q[b] = q_own;
+    bodies.mass[b] = a.mass;
+    bodies.inertia.col(b) = a.inertia;
+  }
+  m_absorbed.clear();
 }
 
 void RigidBindings::update_offsets(const RigidBodyParticles& bodies) {

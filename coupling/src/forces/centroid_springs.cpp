@@ -38,7 +38,7 @@ void check_stencil(const Stencils& stencils, Index e, Index particle_count) {
 }  // namespace
 
 CentroidSprings::CentroidSprings(Stencils stencils, const Vectors3& rest_x, const CentroidSpringsSettings& settings)
-    : m_stencils(std::move(stencils)), m_settings(settings) {
+    : m_stencils(std::move(stencils)), m_settings(settings), m_rest_x(rest_x) {
   detail::check_non_negative(kName, "stiffness", m_settings.stiffness);
   detail::check_non_negative(kName, "damping", m_settings.damping);
   const Index count = m_stencils.size(), n = rest_x.cols();
@@ -216,6 +216,10 @@ double CentroidSprings::stable_dt(const VectorXd& m_eff) const {
   for (Index i = 0; i < m_index_span; ++i)
     omega_sq = std::max(omega_sq, 2.0 * m_settings.stiffness * m_weight_sum[i] * detail::inverse_mass(m_eff[i]));
   return omega_sq > 0.0 ? 2.0 / std::sqrt(omega_sq) : kInfinity;
+}
+
+Index CentroidSprings::remove_elements_touching(std::span<const std::uint8_t> removed) {
+  return detail::rebuild_without(*this, m_stencils, removed, m_rest_x, m_settings);
 }
 
 }  // namespace sinew

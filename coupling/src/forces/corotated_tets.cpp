@@ -65,7 +65,7 @@ Vec3 diagonal_stress(const Vec3& sigma, double mu, double lambda) {
 }  // namespace
 
 CorotatedTets::CorotatedTets(std::vector<Tet> tets, const Vectors3& rest_x, const CorotatedTetsSettings& settings)
-    : m_tets(std::move(tets)), m_settings(settings) {
+    : m_tets(std::move(tets)), m_settings(settings), m_rest_x(rest_x) {
   detail::check_non_negative(kName, "young_modulus", m_settings.young_modulus);
   if (m_settings.young_modulus == 0.0) fail(kName, ": young_modulus is 0, expected > 0");
   const double nu = m_settings.poisson_ratio;
@@ -206,6 +206,10 @@ void CorotatedTets::add_diagonal(double b, VectorXd& diag) const {
 double CorotatedTets::stable_dt(const VectorXd& m_eff) const {
   detail::check_mass_count(kName, m_eff, static_cast<Index>(m_incidence_offsets.size()) - 1);
   return detail::element_bound_stable_dt(m_tets, m_dt_weights, m_incidence_offsets, m_incidence, m_eff);
+}
+
+Index CorotatedTets::remove_elements_touching(std::span<const std::uint8_t> removed) {
+  return detail::rebuild_without(*this, m_tets, removed, m_rest_x, m_settings);
 }
 
 }  // namespace sinew

@@ -256,7 +256,7 @@ double DihedralBending::dihedral_angle(const Vec3& x0, const Vec3& x1, const Vec
 
 DihedralBending::DihedralBending(std::vector<Hinge> hinges, const Vectors3& rest_x,
                                  const DihedralBendingSettings& settings)
-    : m_hinges(std::move(hinges)), m_settings(settings) {
+    : m_hinges(std::move(hinges)), m_settings(settings), m_rest_x(rest_x) {
   detail::check_non_negative(kName, "stiffness", m_settings.stiffness);
   detail::check_non_negative(kName, "damping", m_settings.damping);
 
@@ -528,6 +528,10 @@ Mat3 DihedralBending::pair_block(Index k, double b) const {
 double DihedralBending::stable_dt(const VectorXd& m_eff) const {
   detail::check_mass_count(kName, m_eff, static_cast<Index>(m_incidence_offsets.size()) - 1);
   return detail::element_bound_stable_dt(m_hinges, m_dt_weights, m_incidence_offsets, m_incidence, m_eff);
+}
+
+Index DihedralBending::remove_elements_touching(std::span<const std::uint8_t> removed) {
+  return detail::rebuild_without(*this, m_hinges, removed, m_rest_x, m_settings);
 }
 
 }  // namespace sinew

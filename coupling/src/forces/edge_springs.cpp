@@ -33,7 +33,7 @@ constexpr double kZeroLengthRelative = 1.0e-12;
 }  // namespace
 
 EdgeSprings::EdgeSprings(std::vector<Edge> edges, const Vectors3& rest_x, const EdgeSpringsSettings& settings)
-    : m_edges(std::move(edges)), m_settings(settings) {
+    : m_edges(std::move(edges)), m_settings(settings), m_rest_x(rest_x) {
   detail::check_non_negative(kName, "stiffness", m_settings.stiffness);
   detail::check_non_negative(kName, "damping", m_settings.damping);
 
@@ -277,6 +277,10 @@ double EdgeSprings::stable_dt(const VectorXd& m_eff) const {
     omega_sq = std::max(omega_sq, 2.0 * m_stiffness_sum[i] * detail::inverse_mass(m_eff[i]));
   }
   return omega_sq > 0.0 ? 2.0 / std::sqrt(omega_sq) : kInfinity;
+}
+
+Index EdgeSprings::remove_elements_touching(std::span<const std::uint8_t> removed) {
+  return detail::rebuild_without(*this, m_edges, removed, m_rest_x, m_settings);
 }
 
 }  // namespace sinew

@@ -2,11 +2,14 @@
 // stable time step bound shared by the FEM-like forces.
 #pragma once
 
+#include "sinew/parallel.hpp"
 #include "sinew/types.hpp"
 
 #include <algorithm>
 #include <array>
 #include <cstddef>
+#include <cstdint>
+#include <span>
 #include <string_view>
 #include <vector>
 
@@ -128,6 +131,40 @@ inline Eigen::Matrix<double, 3, static_cast<int>(K)> gather(const std::array<Ind
   Eigen::Matrix<double, 3, static_cast<int>(K)> x_e;
   for (std::size_t a = 0; a < K; ++a) x_e.col(static_cast<Index>(a)) = x.col(v[a]);
   return x_e;
+}
+
+/// The elements with no node flagged in `removed` (one flag per particle; nodes past its end count as
+/// kept), in their order.
+template <std::size_t K>
+std::vector<std::array<Index, K>> elements_without(const std::vector<std::array<Index, K>>& elements,
+                                                   std::span<const std::uint8_t> removed) {
+  auto gone = [&](Index i) { return i < static_cast<Index>(removed.size()) && removed[static_cast<std::size_t>(i)] != 0; };
+  std::vector<std::array<Index, K>> kept;
+  for (const auto& e : elements)
+    if (std::none_of(e.begin(), e.end(), gone)) kept.push_back(e);
+  return kept;
+}
+inline Stencils elements_without(const Stencils& elements, std::span<const std::uint8_t> removed) {
+  auto gone = [&](Index i) { return i < static_cast<Index>(removed.size()) && removed[static_cast<std::size_t>(i)] != 0; };
+  Stencils kept;
+  for (Index e = 0; e < elements.size(); ++e)
+    if (std::none_of(elements[e].begin(), elements[e].end(), gone)) kept.push_back(elements[e]);
+  return kept;
+}
+inline Index element_count(const Stencils& elements) { return elements.size(); }
+template <typename E>
+Index element_count(const std::vector<E>& elements) { return static_cast<Index>(elements.size()); }
+
+/// Force::remove_elements_touching for a force built as Force(elements, rest_x, settings): the force
+/// is built again from the elements that remain, with the rest positions and settings it was built
+/// with, so it is exactly the force those elements alone would have made.
+template <typename ElementForce, typename Elements, typename Settings>
+Index rebuild_without(ElementForce& force, const Elements& elements, std::span<const std::uint8_t> removed,
+                      const Vectors3& rest_x, const Settings& settings) {
+  Elements kept = elements_without(elements, removed);
+  const Index dropped = element_count(elements) - element_count(kept);
+  if (dropped > 0) force = ElementForce(std::move(kept), rest_x, settings);
+  return dropped;
 }
 
 }  // namespace sinew::detail

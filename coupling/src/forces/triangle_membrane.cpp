@@ -55,7 +55,7 @@ Mat2 stress(const Mat2& e, double mu, double lambda) {
 
 TriangleMembrane::TriangleMembrane(std::vector<Triangle> triangles, const Vectors3& rest_x,
                                    const TriangleMembraneSettings& settings)
-    : m_triangles(std::move(triangles)), m_settings(settings) {
+    : m_triangles(std::move(triangles)), m_settings(settings), m_rest_x(rest_x) {
   detail::check_non_negative(kName, "mu", m_settings.mu);
   if (!std::isfinite(m_settings.lambda)) fail(kName, ": lambda is ", m_settings.lambda);
   if (m_settings.lambda < -m_settings.mu) {
@@ -192,6 +192,10 @@ void TriangleMembrane::add_diagonal(double b, VectorXd& diag) const {
 double TriangleMembrane::stable_dt(const VectorXd& m_eff) const {
   detail::check_mass_count(kName, m_eff, static_cast<Index>(m_incidence_offsets.size()) - 1);
   return detail::element_bound_stable_dt(m_triangles, m_dt_weights, m_incidence_offsets, m_incidence, m_eff);
+}
+
+Index TriangleMembrane::remove_elements_touching(std::span<const std::uint8_t> removed) {
+  return detail::rebuild_without(*this, m_triangles, removed, m_rest_x, m_settings);
 }
 
 }  // namespace sinew

@@ -31,6 +31,10 @@ class BindingKind {
   virtual Index size() const = 0;
   /// The bound particle of binding k.
   virtual Index particle(Index k) const = 0;
+  /// The order in which binding k was added among all hard bindings: names it in messages.
+  virtual Index id(Index k) const = 0;
+  /// Removes binding k (later bindings move down by one).
+  virtual void remove(Index k) = 0;
   /// True when the parents are rigid bodies: changing such a binding changes a body's mass
   /// properties where SystemSettings::absorb_bound_mass_into_rigid_bodies merges them.
   virtual bool on_rigid_frames() const { return false; }

@@ -25,11 +25,11 @@ class LinearBindings final : public BindingKind {
     return {m_weight.data() + m_offset[k], static_cast<std::size_t>(m_offset[k + 1] - m_offset[k])};
   }
   /// The order in which the user added binding k (among all hard bindings), to name it in messages.
-  Index id(Index k) const { return m_id[k]; }
+  Index id(Index k) const override { return m_id[k]; }
 
   /// Appends a binding (weights already checked).
   void add(Index id, Index particle, std::span<const Index> parents, std::span<const double> weights);
-  void remove(Index k);
+  void remove(Index k) override;
   void clear();
 
   void clamp_positions(Vectors3& x, const Vectors3& body_x) const override;

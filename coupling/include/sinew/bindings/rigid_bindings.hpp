@@ -22,15 +22,21 @@ class RigidBindings final : public BindingKind {
   /// r = R(q) r0 at the frames of the last update_offsets call.
   Vec3 offset_world(Index k) const { return m_r.col(k); }
   void set_offset_body(Index k, const Vec3& r0) { m_r0[k] = r0; }
-  Index id(Index k) const { return m_id[k]; }
+  Index id(Index k) const override { return m_id[k]; }
 
   void add(Index id, Index particle, Index body, const Vec3& r0);
-  void remove(Index k);
+  void remove(Index k) override;
 
   /// Merges each point's mass (mass[particle], the mass it was created with) into its dynamic body by
   /// the parallel-axis theorem, moving the centre of mass, rediagonalising the inertia and
-  /// re-expressing every offset on that body in the new principal frame; momentum is kept.
+  /// re-expressing every offset on that body in the new principal frame; momentum is kept. What was
+  /// merged is remembered, so that release_masses() can take it out again.
   void absorb_masses(const VectorXd& mass, RigidBodyParticles& bodies);
+  /// Undoes absorb_masses (to round-off): each body gets back its own mass and inertia, its centre of mass
+  /// and principal frame where they are on the body now (the body has moved rigidly since), with the
+  /// velocity of that point, and the offsets on it are re-expressed in that frame. Bindings may then
+  /// change and absorb_masses run again.
+  void release_masses(RigidBodyParticles& bodies);
 
   void update_offsets(const RigidBodyParticles& bodies) override;
   void clamp_positions(Vectors3& x, const Vectors3& body_x) const override;
@@ -55,6 +61,16 @@ class RigidBindings final : public BindingKind {
   std::vector<Index> m_body;
   std::vector<Vec3> m_r0;
   Vectors3 m_r;  // cached world offsets (3 x size)
+  // Per body that absorb_masses changed: its own mass and principal moments, and where its own frame
+  // sits in the merged one (centre d and rotation q_rel, constant while the body moves rigidly).
+  struct Absorbed {
+    Index body = -1;
+    double mass = 0.0;
+    Vec3 inertia = Vec3::Zero();
+    Vec3 d = Vec3::Zero();
+    Quat q_rel = Quat::Identity();
+  };
+  std::vector<Absorbed> m_absorbed;
 };
 
 }  // namespace sinew

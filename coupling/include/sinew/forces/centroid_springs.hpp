@@ -35,6 +35,8 @@ class CentroidSprings final : public Force, public ImplicitBlocks {
   bool has_definite_differentials() const override { return true; }
   void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
   double stable_dt(const VectorXd& m_eff) const override;
+  bool can_remove_elements() const override { return true; }
+  Index remove_elements_touching(std::span<const std::uint8_t> removed) override;
   /// Every block: scalar and 3x3 diagonal, each element's node pairs one at a time.
   const ImplicitBlocks* implicit_blocks() const override { return this; }
   void add_diagonal(double b, VectorXd& diag) const override;
@@ -60,6 +62,7 @@ class CentroidSprings final : public Force, public ImplicitBlocks {
 
   Stencils m_stencils;
   CentroidSpringsSettings m_settings;
+  Vectors3 m_rest_x;  ///< the rest positions it was built from (remove_elements_touching rebuilds from them)
   VectorXd m_rest_length;           ///< l0 per element
   VectorXd m_weight_sum;            ///< per particle: sum of |w| over its elements (stable_dt)
   std::vector<Index> m_pair_offset;  ///< element e's node pairs are blocks [m_pair_offset[e], m_pair_offset[e + 1])

@@ -32,6 +32,8 @@ class CorotatedTets final : public Force, public ImplicitBlocks {
   void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
   bool has_damping() const override { return m_settings.beta > 0.0; }
   double stable_dt(const VectorXd& m_eff) const override;
+  bool can_remove_elements() const override { return true; }
+  Index remove_elements_touching(std::span<const std::uint8_t> removed) override;
   /// The scalar diagonal of D only (no definite differential, so b is 0): no 3x3 or pair blocks.
   const ImplicitBlocks* implicit_blocks() const override { return this; }
   void add_diagonal(double b, VectorXd& diag) const override;
@@ -54,6 +56,7 @@ class CorotatedTets final : public Force, public ImplicitBlocks {
 
   std::vector<Tet> m_tets;
   CorotatedTetsSettings m_settings;
+  Vectors3 m_rest_x;  ///< the rest positions it was built from (remove_elements_touching rebuilds from them)
   double m_mu = 0.0;
   double m_lambda = 0.0;
   std::vector<Mat3> m_dm_inv;  ///< inverse of the rest edge matrix [x1-x0, x2-x0, x3-x0]

@@ -64,6 +64,8 @@ class DihedralBending final : public Force, public ImplicitBlocks {
   void set_implicit(bool implicit) override { m_implicit = implicit; }
   void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
   double stable_dt(const VectorXd& m_eff) const override;
+  bool can_remove_elements() const override { return true; }
+  Index remove_elements_touching(std::span<const std::uint8_t> removed) override;
   /// Every block: scalar and 3x3 diagonal, six pair blocks per hinge one at a time.
   const ImplicitBlocks* implicit_blocks() const override { return this; }
   void add_diagonal(double b, VectorXd& diag) const override;
@@ -81,6 +83,7 @@ class DihedralBending final : public Force, public ImplicitBlocks {
  private:
   std::vector<Hinge> m_hinges;
   DihedralBendingSettings m_settings;
+  Vectors3 m_rest_x;  ///< the rest positions it was built from (remove_elements_touching rebuilds from them)
   std::vector<double> m_rest_angle;
   /// (cos theta0, sin theta0) per hinge up to a positive power of two, as the kinematics compute them.
   std::vector<std::array<double, 2>> m_rest_direction;

@@ -34,6 +34,8 @@ class EdgeSprings final : public Force, public ImplicitBlocks {
   bool has_definite_differentials() const override { return true; }
   void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
   double stable_dt(const VectorXd& m_eff) const override;
+  bool can_remove_elements() const override { return true; }
+  Index remove_elements_touching(std::span<const std::uint8_t> removed) override;
   /// Every block: scalar and 3x3 diagonal, pair blocks one edge at a time.
   const ImplicitBlocks* implicit_blocks() const override { return this; }
   void add_diagonal(double b, VectorXd& diag) const override;
@@ -55,6 +57,7 @@ class EdgeSprings final : public Force, public ImplicitBlocks {
 
   std::vector<Edge> m_edges;
   EdgeSpringsSettings m_settings;
+  Vectors3 m_rest_x;  ///< the rest positions it was built from (remove_elements_touching rebuilds from them)
   VectorXd m_rest_length;      ///< l0 per edge
   VectorXd m_stiffness_sum;    ///< sum of k over the edges at each particle (stable_dt)
   Index m_index_span = 0;      ///< one past the largest particle index used

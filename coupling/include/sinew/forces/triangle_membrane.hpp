@@ -35,6 +35,8 @@ class TriangleMembrane final : public Force, public ImplicitBlocks {
   void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
   bool has_damping() const override { return m_settings.beta > 0.0; }
   double stable_dt(const VectorXd& m_eff) const override;
+  bool can_remove_elements() const override { return true; }
+  Index remove_elements_touching(std::span<const std::uint8_t> removed) override;
   /// The scalar diagonal of D only (no definite differential, so b is 0): no 3x3 or pair blocks.
   const ImplicitBlocks* implicit_blocks() const override { return this; }
   void add_diagonal(double b, VectorXd& diag) const override;
@@ -46,6 +48,7 @@ class TriangleMembrane final : public Force, public ImplicitBlocks {
  private:
   std::vector<Triangle> m_triangles;
   TriangleMembraneSettings m_settings;
+  Vectors3 m_rest_x;  ///< the rest positions it was built from (remove_elements_touching rebuilds from them)
   // Rest data: inverse of the 2x2 rest edge matrix in the triangle's own frame, and rest area.
   std::vector<Eigen::Matrix2d> m_dm_inv;
   std::vector<double> m_area;

@@ -50,7 +50,8 @@ class Coupling {
   System& system() { return m_system; }
   const System& system() const { return m_system; }
 
-  /// The rigid-body particle standing for `body`, created on first use (before the first tick).
+  /// The rigid-body particle standing for `body`, created on first use (also between ticks: the next
+  /// tick sets the system up again).
   /// Static and kinematic bodies become kinematic rigid-body particles (infinite mass).
   Index rigid_particle(btRigidBody* body);
   /// The Bullet body a rigid-body particle stands for.
