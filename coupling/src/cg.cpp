@@ -72,7 +72,8 @@ void ConjugateGradients::resize(Index particle_count, Index rigid_count) {
 
 // Preconditioned conjugate gradients on the symmetric positive definite S = M + h W^T(D + beta K)W
 // (symmetric in the plain inner product; the paper's mass inner product form is the same iteration).
-// Constrained directions (kinematic rows and bodies, collision normals) keep their initial values.
+// Constrained directions (kinematic rows and bodies, collision constraints, joint rows) keep their
+// initial values.
 SolveResult ConjugateGradients::solve(LinearOperator& op, const GeneralizedVector& c, GeneralizedVector& y, double tolerance,
                                       int max_iterations, bool iterate, GeneralizedVector* alternative, Alternative rule,
                                       long step) {

@@ -1,5 +1,6 @@
 // The constrained directions of the Newmark step's implicit solves (internal to sinew::Newmark):
-// rows without unknowns, kinematic bodies, the collision normals of step 3, and the joint rows
+// rows without unknowns, kinematic bodies, the collision constraints of step 3 (weighted stencils),
+// and the joint rows
 // between rigid-body particles. Each is a projection, so CG works in the constraints' null space
 // and the constrained components keep their prescribed values (projected CG).
 #pragma once

@@ -27,7 +27,7 @@ void ImplicitSystem::apply(const GeneralizedVector& u, GeneralizedVector& out) {
   s.hard.distribute(m_apply_f, m_apply_wrench);
 
   // Rows without unknowns have zero mass and mask, so they come out zero here (the projection below
-  // then only has bodies and collision normals to handle on the particle block).
+  // then only has bodies and collision constraints to handle on the particle block).
   if (m_h_mask_h != h) {
     for (Index i = 0; i < n; ++i) m_h_mask3.segment<3>(3 * i).setConstant(h * m_unknowns.dynamic_mask[i]);
     m_h_mask_h = h;

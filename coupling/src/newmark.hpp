@@ -3,7 +3,7 @@
 // newmark.cpp holds the five steps in order and what they share (forces, right-hand sides, the
 // initial guesses); the pieces they use live beside it: cg.* (conjugate gradients and its vector
 // work), implicit_system.* (the operator S of eq. 8), preconditioner.* (block Jacobi, multigrid),
-// constraints.* (collision normals and joint rows, as projections). The step sees the system only
+// constraints.* (collision stencils and joint rows, as projections). The step sees the system only
 // through a StepModel (step_model.hpp).
 #pragma once
 

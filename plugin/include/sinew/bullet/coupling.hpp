@@ -46,7 +46,7 @@ class Coupling {
   Coupling(const Coupling&) = delete;
   Coupling& operator=(const Coupling&) = delete;
 
-  /// The deformable system: add cloth, forces and bindings here before the first tick.
+  /// The deformable system: add cloth, forces and bindings here (between ticks too).
   System& system() { return m_system; }
   const System& system() const { return m_system; }
 
