@@ -1,6 +1,7 @@
 // The Bullet plugin's exchange (Sifakis et al. 2007, section 5): copy state in, momentum out.
 #include "bullet_scenes.hpp"
 #include "sinew/bullet/collisions.hpp"
+#include "sinew/bullet/convert.hpp"
 #include "sinew/bullet/coupling.hpp"
 
 #include <BulletDynamics/Featherstone/btMultiBodyConstraintSolver.h>
@@ -64,9 +65,7 @@ TEST(BulletCoupling, RunsEveryInternalTickAndChainsTheApplicationsCallback) {
 // total (Bullet body plus cloth) is conserved through the copy-in / copy-out exchange.
 TEST(BulletCoupling, IsolatedCoupledSystemConservesLinearMomentumThroughTheExchange) {
   BulletWorld bw(btVector3(0, 0, 0));
-  btTransform at;
-  at.setIdentity();
-  at.setOrigin(btVector3(0, 0.5, 0));
+  btTransform at = scenes::at(btVector3(0, 0.5, 0));
   btRigidBody* box = add_box(bw, btVector3(0.3, 0.05, 0.2), 1.0, at);
   box->setLinearVelocity(btVector3(0.2, 0.1, 0));
   box->setAngularVelocity(btVector3(0, 2.0, 0.5));
@@ -83,8 +82,7 @@ TEST(BulletCoupling, IsolatedCoupledSystemConservesLinearMomentumThroughTheExcha
   auto total_momentum = [&] {
     // The cloth's momentum (the system's, less its copy of the box) plus Bullet's box.
     const Vec3 cloth_p = s.linear_momentum() - s.rigid_bodies().mass[0] * Vec3(s.rigid_bodies().v.col(0));
-    const btVector3 v = box->getLinearVelocity();
-    return Vec3(cloth_p + (1.0 / box->getInvMass()) * Vec3(v.x(), v.y(), v.z()));
+    return Vec3(cloth_p + (1.0 / box->getInvMass()) * bullet::to_eigen(box->getLinearVelocity()));
   };
   bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
   const Vec3 p0 = total_momentum();
@@ -100,9 +98,9 @@ TEST(BulletCoupling, IsolatedCoupledSystemConservesLinearMomentumThroughTheExcha
   const btTransform& frame = box->getCenterOfMassTransform();
   for (Index k = 0; k < s.hard_bindings().rigid_count(); ++k) {
     const Vec3 local = s.hard_bindings().rigid_offset_body(k);
-    const btVector3 on_box = frame * btVector3(local.x(), local.y(), local.z());
+    const Vec3 on_box = bullet::to_eigen(frame * bullet::to_bullet(local));
     const Vec3 x = s.particles().x.col(s.hard_bindings().rigid_particle(k));
-    EXPECT_LT((x - Vec3(on_box.x(), on_box.y(), on_box.z())).norm(), 1e-12) << "binding " << k;
+    EXPECT_LT((x - on_box).norm(), 1e-12) << "binding " << k;
   }
 }
 
@@ -110,9 +108,7 @@ TEST(BulletCoupling, IsolatedCoupledSystemConservesLinearMomentumThroughTheExcha
 // from it by binding springs, falling freely, gain exactly (M + m) g t of momentum, not (2M + m) g t.
 TEST(BulletCoupling, GravityIsNotAppliedTwice) {
   BulletWorld bw(btVector3(0, -9.81, 0));
-  btTransform at;
-  at.setIdentity();
-  at.setOrigin(btVector3(0, 1.0, 0));
+  btTransform at = scenes::at(btVector3(0, 1.0, 0));
   btRigidBody* box = add_box(bw, btVector3(0.3, 0.05, 0.05), 2.0, at);
   bullet::Coupling coupling(&bw.world());
   System& s = coupling.system();
@@ -136,8 +132,7 @@ TEST(BulletCoupling, GravityIsNotAppliedTwice) {
 // 0.25 m) and the frame turns 0.2 rad per tick, yet the cloth stays attached and finite.
 TEST(BulletCoupling, ClothOnFastSpinningBodyStaysAttached) {
   BulletWorld bw(btVector3(0, 0, 0));
-  btTransform at;
-  at.setIdentity();
+  btTransform at = btTransform::getIdentity();
   btRigidBody* hub = add_box(bw, btVector3(0.1, 0.1, 0.1), 2.0, at);
   hub->setAngularVelocity(btVector3(0, 50, 0));
   bullet::CouplingSettings settings;
@@ -182,9 +177,7 @@ TEST(BulletCoupling, ClothOnFastSpinningBodyStaysAttached) {
 // their frames exactly, and they are never pushed.
 TEST(BulletCoupling, ClothFollowsStaticAndKinematicParentsExactly) {
   BulletWorld bw(btVector3(0, -9.81, 0));
-  btTransform at;
-  at.setIdentity();
-  at.setOrigin(btVector3(0, 1.0, 0));
+  btTransform at = scenes::at(btVector3(0, 1.0, 0));
   btRigidBody* rod = add_box(bw, btVector3(0.4, 0.02, 0.02), 0.0, at);
   rod->setCollisionFlags(rod->getCollisionFlags() | btCollisionObject::CF_KINEMATIC_OBJECT);
   bullet::Coupling coupling(&bw.world());
@@ -211,9 +204,9 @@ TEST(BulletCoupling, ClothFollowsStaticAndKinematicParentsExactly) {
   for (Index k = 0; k < s.hard_bindings().rigid_count(); ++k) {
     if (s.hard_bindings().rigid_body(k) != coupling.rigid_particle(rod)) continue;
     const Vec3 local = s.hard_bindings().rigid_offset_body(k);
-    const btVector3 expected = frame * btVector3(btScalar(local.x()), btScalar(local.y()), btScalar(local.z()));
+    const Vec3 expected = bullet::to_eigen(frame * bullet::to_bullet(local));
     const Vec3 x = s.particles().x.col(s.hard_bindings().rigid_particle(k));
-    EXPECT_NEAR((x - Vec3(expected.x(), expected.y(), expected.z())).norm(), 0.0, 1e-9) << "binding " << k;
+    EXPECT_NEAR((x - expected).norm(), 0.0, 1e-9) << "binding " << k;
   }
   EXPECT_LT(s.max_hard_binding_drift(), 1e-12);
   EXPECT_EQ(s.particles().x.col(corner), pinned);  // the static parent never moves, nor does its point
@@ -224,9 +217,7 @@ TEST(BulletCoupling, ClothFollowsStaticAndKinematicParentsExactly) {
 // zero-rest-length spring of stiffness k is then stretched by m g / k.
 TEST(BulletCoupling, PointInsideATriangleHangsTheClothByABindingSpring) {
   BulletWorld bw(btVector3(0, -9.81, 0));
-  btTransform at;
-  at.setIdentity();
-  at.setOrigin(btVector3(0, 1.2, 0));
+  btTransform at = scenes::at(btVector3(0, 1.2, 0));
   btRigidBody* hook = add_box(bw, btVector3(0.02, 0.02, 0.02), 0.0, at);  // static
   bullet::Coupling coupling(&bw.world());
   System& s = coupling.system();
@@ -257,9 +248,7 @@ TEST(BulletCoupling, PointInsideATriangleHangsTheClothByABindingSpring) {
 // gravity acts on it from outside, so its centre of mass follows y = y0 + v0 t - g t^2 / 2 exactly.
 TEST(BulletCoupling, RemovingBindingsAtRunTimeReleasesTheCloth) {
   BulletWorld bw(btVector3(0, -9.81, 0));
-  btTransform at;
-  at.setIdentity();
-  at.setOrigin(btVector3(0, 1.05, 0));  // clear of the cloth by more than the collision thickness
+  btTransform at = scenes::at(btVector3(0, 1.05, 0));  // clear of the cloth by more than the collision thickness
   btRigidBody* rod = add_box(bw, btVector3(0.4, 0.01, 0.01), 0.0, at);
   bullet::Coupling coupling(&bw.world());
   System& s = coupling.system();
@@ -445,9 +434,7 @@ TEST(BulletCoupling, AttachesToAMultibodyWorld) {
 // A cloth thrown at 5 m/s onto a 1 cm plate does not pass through it (0.02 m per tick > the plate).
 TEST(BulletCoupling, FastClothDoesNotTunnelThroughAThinPlate) {
   BulletWorld bw(btVector3(0, -9.81, 0));
-  btTransform at;
-  at.setIdentity();
-  at.setOrigin(btVector3(0, 0.5, 0));
+  btTransform at = scenes::at(btVector3(0, 0.5, 0));
   add_box(bw, btVector3(0.6, 0.005, 0.6), 0.0, at);
   bullet::Coupling coupling(&bw.world());
   System& s = coupling.system();
@@ -466,8 +453,7 @@ TEST(BulletCoupling, FastClothDoesNotTunnelThroughAThinPlate) {
 // Both fall freely together: y = -g t^2 / 2, the spring carrying nothing but its ringing.
 TEST(BulletCoupling, AStiffSpringOnAFreeFallingBodyFallsWithIt) {
   BulletWorld bw(btVector3(0, -9.81, 0));
-  btTransform at;
-  at.setIdentity();
+  btTransform at = btTransform::getIdentity();
   btRigidBody* box = add_box(bw, btVector3(0.04, 0.04, 0.04), 0.05, at);
   bullet::CouplingSettings settings;
   settings.collisions = false;  // the node sits inside the box
@@ -490,8 +476,7 @@ TEST(BulletCoupling, AStiffSpringOnAFreeFallingBodyFallsWithIt) {
 void run_node_on_a_slider_ring(double node_mass, double k, double& stretch, double& off_rod, double& along_rod, double global_cfm = 0.0) {
   BulletWorld bw(btVector3(0, -9.81, 0));
   bw.world().getSolverInfo().m_globalCfm = btScalar(global_cfm);
-  btTransform at;
-  at.setIdentity();
+  btTransform at = btTransform::getIdentity();
   btRigidBody* rod = add_box(bw, btVector3(1.0, 0.01, 0.01), 0.0, at);
   btRigidBody* ring = add_box(bw, btVector3(0.04, 0.04, 0.04), 0.05, at);
   ring->setLinearVelocity(btVector3(0.3, 0, 0));
@@ -543,9 +528,7 @@ TEST(BulletCoupling, ASliderIsHeldWithAGlobalCfm) {
 TEST(BulletCoupling, ClothHittingADynamicBodyConservesMomentumOnEitherPath) {
   for (const bool coupled : {true, false}) {
     BulletWorld bw(btVector3(0, 0, 0));
-    btTransform at;
-    at.setIdentity();
-    at.setOrigin(btVector3(0, 0, 0));
+    btTransform at = scenes::at(btVector3(0, 0, 0));
     btRigidBody* box = add_box(bw, btVector3(0.5, 0.05, 0.5), 0.5, at);
     bullet::Coupling coupling(&bw.world());
     System& s = coupling.system();
@@ -558,8 +541,7 @@ TEST(BulletCoupling, ClothHittingADynamicBodyConservesMomentumOnEitherPath) {
     auto total_momentum = [&] {
       Vec3 p = Vec3::Zero();
       for (Index node : cloth.nodes) p += s.particles().mass[node] * s.particles().v.col(node);
-      const btVector3 v = box->getLinearVelocity();
-      return Vec3(p + (1.0 / box->getInvMass()) * Vec3(v.x(), v.y(), v.z()));
+      return Vec3(p + (1.0 / box->getInvMass()) * bullet::to_eigen(box->getLinearVelocity()));
     };
     s.finalize();
     const Vec3 p0 = total_momentum();
@@ -581,9 +563,7 @@ TEST(BulletCoupling, ClothHittingADynamicBodyConservesMomentumOnEitherPath) {
 TEST(BulletCoupling, CollisionFiltersFollowBulletsGroupsAndMasks) {
   for (const bool filtered : {false, true}) {
     BulletWorld bw(btVector3(0, -9.81, 0));
-    btTransform at;
-    at.setIdentity();
-    at.setOrigin(btVector3(0, -0.05, 0));
+    btTransform at = scenes::at(btVector3(0, -0.05, 0));
     bw.add_body(bw.keep(std::make_unique<btBoxShape>(btVector3(2, 0.05, 2))), 0.0, at, btVector3(0, 0, 0),
                 btBroadphaseProxy::StaticFilter, btBroadphaseProxy::AllFilter ^ btBroadphaseProxy::StaticFilter);
     bullet::Coupling coupling(&bw.world());

@@ -1,5 +1,6 @@
 // Regression tests on the demo scenes: the curtain, the net, the plates and hello, run headless.
 #include "bullet_scenes.hpp"
+#include "sinew/bullet/convert.hpp"
 
 #include <gtest/gtest.h>
 
@@ -10,10 +11,7 @@ namespace {
 
 using scenes::make_bullet_scene;
 
-Vec3 position(const btRigidBody* b) {
-  const btVector3 p = b->getCenterOfMassPosition();
-  return Vec3(p.x(), p.y(), p.z());
-}
+Vec3 position(const btRigidBody* b) { return bullet::to_eigen(b->getCenterOfMassPosition()); }
 
 void run(scenes::BulletScene& scene, int frames) {
   for (int f = 0; f < frames; ++f) scene.advance(1.0 / 60, scene.default_substeps());

@@ -1,5 +1,6 @@
 // Mesh files: assimp round trips in every supported format, TetGen tet meshes, and named errors.
 #include "sinew/mesh/mesh_io.hpp"
+#include "test_util.hpp"
 
 #include <gtest/gtest.h>
 
@@ -10,6 +11,7 @@ namespace sinew {
 namespace {
 
 namespace fs = std::filesystem;
+using test::error_of;
 
 fs::path scratch(const std::string& name) {
   const fs::path dir = fs::temp_directory_path() / "sinew_test_mesh";
@@ -52,16 +54,6 @@ TEST_P(MeshRoundTrip, SavedMeshLoadsBackTheSame) {
 
 INSTANTIATE_TEST_SUITE_P(Formats, MeshRoundTrip, ::testing::Values(".obj", ".ply", ".stl", ".gltf", ".glb"),
                          [](const auto& test) { return test.param.substr(1); });
-
-template <typename F>
-std::string error_of(F&& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "no error";
-}
 
 TEST(MeshFiles, BadFilesAreNamed) {
   const std::string missing = scratch("missing.obj").string();

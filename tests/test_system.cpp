@@ -10,13 +10,26 @@
 #include <gtest/gtest.h>
 
 #include <array>
+#include <cctype>
+#include <functional>
+#include <ostream>
 
 #include "allocation_counter.hpp"
 
 namespace sinew {
 namespace {
 
+using test::error_of;
+
 const SystemSettings kNoGravity{Vec3::Zero(), true};
+
+// Bit-identical runs: the hash and every position, velocity and angular velocity compared with ==.
+void expect_bit_identical(const System& a, const System& b, const std::string& what = "") {
+  EXPECT_EQ(a.state_hash(), b.state_hash()) << what;
+  EXPECT_TRUE(a.particles().x == b.particles().x) << what;
+  EXPECT_TRUE(a.particles().v == b.particles().v) << what;
+  EXPECT_TRUE(a.rigid_bodies().w == b.rigid_bodies().w) << what;
+}
 
 // A free-floating system: a cloth partly hard-bound to a spinning, tumbling rigid body, partly tied
 // to points of the body by binding springs, with synchronized soft duplicates of two nodes.
@@ -135,11 +148,7 @@ TEST(System, TwoRunsAreBitIdentical) {
     for (int i = 0; i < 40; ++i) s.advance(1.0 / 60);
     return s;
   };
-  const System a = run(), b = run();
-  EXPECT_EQ(a.state_hash(), b.state_hash());
-  EXPECT_TRUE(a.particles().x == b.particles().x);
-  EXPECT_TRUE(a.particles().v == b.particles().v);
-  EXPECT_TRUE(a.rigid_bodies().w == b.rigid_bodies().w);
+  expect_bit_identical(run(), run());
 }
 
 TEST(System, StepAllocatesNothingAfterItsFirstCall) {
@@ -203,11 +212,8 @@ TEST(System, OneAndTwoThreadsAreBitIdentical) {
         for (int i = 0; i < (side == 50 ? 8 : 3); ++i) s.step(dt);
         return s;
       };
-      const System a = run(1), b = run(2);
-      EXPECT_EQ(a.state_hash(), b.state_hash()) << side << " x " << side << ", " << (implicit ? "implicit" : "explicit") << " elasticity";
-      EXPECT_TRUE(a.particles().x == b.particles().x);
-      EXPECT_TRUE(a.particles().v == b.particles().v);
-      EXPECT_TRUE(a.rigid_bodies().w == b.rigid_bodies().w);
+      expect_bit_identical(run(1), run(2),
+                           std::to_string(side) + " x " + std::to_string(side) + ", " + (implicit ? "implicit" : "explicit") + " elasticity");
     }
   }
 }
@@ -404,16 +410,6 @@ TEST(System, BindingsReportTheForceTheyCarry) {
 
 // ---- bad input ----------------------------------------------------------------------------------
 
-template <typename F>
-std::string error_of(F&& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "no error";
-}
-
 TEST(System, BadSettingsAreNamed) {
   EXPECT_NE(error_of([] { System s; s.add_particle(Vec3::Zero(), Vec3::Zero(), -1.0); }).find("particle 0: mass -1"), std::string::npos);
   EXPECT_NE(error_of([] {
@@ -459,6 +455,62 @@ TEST(System, BadSettingsAreNamed) {
               s.step(0.01);
             }).find("multigrid needs jacobi_preconditioner"),
             std::string::npos);
+}
+
+// One bad StepSettings field each: step() and advance() refuse it by name, and the system steps
+// once the field is set right again (the refusal left nothing half done).
+struct BadStepSetting {
+  const char* field;
+  std::function<void(StepSettings&)> spoil;
+  friend std::ostream& operator<<(std::ostream& out, const BadStepSetting& b) { return out << b.field; }
+};
+
+class StepSettingsValidation : public ::testing::TestWithParam<BadStepSetting> {};
+
+const double kNaN = std::nan("");
+
+INSTANTIATE_TEST_SUITE_P(
+    System, StepSettingsValidation,
+    ::testing::Values(BadStepSetting{"cg_tolerance = nan", [](StepSettings& s) { s.cg_tolerance = kNaN; }},
+                      BadStepSetting{"cg_tolerance = -1", [](StepSettings& s) { s.cg_tolerance = -1.0; }},
+                      BadStepSetting{"cg_tolerance = 0", [](StepSettings& s) { s.cg_tolerance = 0.0; }},
+                      BadStepSetting{"cg_tolerance = inf", [](StepSettings& s) { s.cg_tolerance = kInfinity; }},
+                      BadStepSetting{"cg_max_iterations = 0", [](StepSettings& s) { s.cg_max_iterations = 0; }},
+                      BadStepSetting{"cg_max_iterations = -3", [](StepSettings& s) { s.cg_max_iterations = -3; }},
+                      BadStepSetting{"newton_iterations = -1", [](StepSettings& s) { s.newton_iterations = -1; }},
+                      BadStepSetting{"threads = -2", [](StepSettings& s) { s.threads = -2; }},
+                      BadStepSetting{"cfl = nan", [](StepSettings& s) { s.cfl = kNaN; }},
+                      BadStepSetting{"cfl = 0", [](StepSettings& s) { s.cfl = 0.0; }},
+                      BadStepSetting{"cfl = -0.5", [](StepSettings& s) { s.cfl = -0.5; }},
+                      BadStepSetting{"cfl = 1.5", [](StepSettings& s) { s.cfl = 1.5; }},
+                      BadStepSetting{"max_substeps = 0", [](StepSettings& s) { s.max_substeps = 0; }},
+                      BadStepSetting{"multigrid needs jacobi_preconditioner", [](StepSettings& s) {
+                                       s.multigrid = true;
+                                       s.jacobi_preconditioner = false;
+                                     }}),
+    [](const auto& info) {
+      std::string name = info.param.field;
+      for (char& c : name)
+        if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
+      return name;
+    });
+
+TEST_P(StepSettingsValidation, StepAndAdvanceRefuseItByNameAndStepOnceFixed) {
+  System s;
+  const Index p = s.add_particle(Vec3::Zero(), Vec3::Zero(), 1.0);
+  const Index q = s.add_particle(Vec3::UnitX(), Vec3::Zero(), 1.0);
+  s.add_force(std::make_unique<EdgeSprings>(std::vector<EdgeSprings::Edge>{{p, q}}, s.particles().x, EdgeSpringsSettings{100.0, 0.1}));
+  const StepSettings good = s.step_settings();
+  GetParam().spoil(s.step_settings());
+  for (const std::string& message : {error_of([&] { s.step(0.01); }), error_of([&] { s.advance(1.0 / 60); })}) {
+    EXPECT_NE(message.find("step settings: "), std::string::npos) << message;
+    EXPECT_NE(message.find(GetParam().field), std::string::npos) << message;
+  }
+  EXPECT_EQ(s.time(), 0.0);
+  s.step_settings() = good;
+  s.advance(1.0 / 60);
+  EXPECT_GT(s.time(), 0.0);
+  EXPECT_LT(s.particles().x(1, p), 0.0);  // gravity moved it: the step ran
 }
 
 TEST(System, NonFiniteStateStopsTheStepNamingPhaseAndParticle) {

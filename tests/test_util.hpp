@@ -4,6 +4,7 @@
 #include "sinew/types.hpp"
 
 #include <random>
+#include <string>
 
 namespace sinew::test {
 
@@ -15,5 +16,16 @@ inline std::mt19937_64& rng() {
 inline double uniform(double a = -1.0, double b = 1.0) { return std::uniform_real_distribution<double>(a, b)(rng()); }
 inline Vec3 random_vec3(double scale = 1.0) { return scale * Vec3(uniform(), uniform(), uniform()); }
 inline Quat random_rotation() { return Quat(uniform(), uniform(), uniform(), uniform()).normalized(); }
+
+/// The message of the sinew::Error that f() throws, or "no error".
+template <typename F>
+std::string error_of(F&& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "no error";
+}
 
 }  // namespace sinew::test

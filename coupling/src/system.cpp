@@ -427,10 +427,7 @@ void System::clamp_bound_rows() {
 
 StepStats System::step(double dt) {
   if (!(std::isfinite(dt) && dt > 0.0)) fail("step: dt ", dt, " must be positive and finite");
-  if (m_step_settings.newton_iterations < 0)
-    fail("step settings: newton_iterations = ", m_step_settings.newton_iterations, ", must be >= 0");
-  if (m_step_settings.multigrid && !m_step_settings.jacobi_preconditioner)
-    fail("step settings: multigrid needs jacobi_preconditioner (block Jacobi is its finest level)");
+  validate(m_step_settings);
   finalize();
   set_thread_count(m_step_settings.threads);
   const StepModel model{m_particles, m_bodies, m_hard,         m_soft,          m_springs,        m_forces,
@@ -459,6 +456,7 @@ double System::stable_dt() {
 
 StepStats System::advance(double frame_dt) {
   if (!(std::isfinite(frame_dt) && frame_dt > 0.0)) fail("advance: frame dt ", frame_dt, " must be positive and finite");
+  validate(m_step_settings);  // before cfl and max_substeps are used below
   const double limit = m_step_settings.cfl * stable_dt();
   const double count = std::ceil(frame_dt / limit);
   if (count > m_step_settings.max_substeps)

@@ -14,6 +14,8 @@
 #include <BulletSoftBody/btSoftRigidDynamicsWorld.h>
 #include <btBulletDynamicsCommon.h>
 
+#include "sinew/bullet/convert.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <functional>
@@ -23,11 +25,6 @@ namespace sinew::bench {
 
 namespace {
 
-btVector3 to_bullet(const Vec3& v) { return btVector3(btScalar(v.x()), btScalar(v.y()), btScalar(v.z())); }
-Vec3 to_eigen(const btVector3& v) { return Vec3(v.x(), v.y(), v.z()); }
-bool finite(const btVector3& v) { return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z()); }
-
-constexpr double kFarAway = 1000.0;  // [m]: the healthy() bound
 constexpr int kCollidesWithNothing = 0;  // broadphase mask: the cloth touches neither rod nor rings
 
 // The patch's diagonals are sinew's only for even n (see BulletCurtain::build_cloth).
@@ -56,7 +53,7 @@ class BulletCurtain : public CurtainRun {
 
   Vectors3 nodes() const override {
     Vectors3 x(3, static_cast<Index>(m_bullet_index.size()));
-    for (std::size_t k = 0; k < m_bullet_index.size(); ++k) x.col(static_cast<Index>(k)) = to_eigen(node(static_cast<int>(k)).m_x);
+    for (std::size_t k = 0; k < m_bullet_index.size(); ++k) x.col(static_cast<Index>(k)) = bullet::to_eigen(node(static_cast<int>(k)).m_x);
     return x;
   }
 
@@ -81,7 +78,7 @@ class BulletCurtain : public CurtainRun {
   bool healthy() const override {
     for (int k = 0; k < node_count(); ++k) {
       const btSoftBody::Node& n = node(k);
-      if (!finite(n.m_x) || !finite(n.m_v) || !(n.m_x.length() <= kFarAway)) return false;
+      if (!all_finite(n.m_x) || !all_finite(n.m_v) || !(n.m_x.length() <= kFarAway)) return false;
     }
     return m_rings->healthy();
   }
@@ -113,17 +110,17 @@ class BulletCurtain : public CurtainRun {
     for (int j = 0; j < n; ++j)
       for (int i = 0; i < n; ++i) m_bullet_index[static_cast<std::size_t>(j * n + i)] = j * n + (mirrored ? n - 1 - i : i);
     const int left = mirrored ? n - 1 : 0, right = mirrored ? 0 : n - 1;
-    m_cloth.reset(btSoftBodyHelpers::CreatePatch(info, to_bullet(node_rest_position(m_spec, left, 0)),
-                                                 to_bullet(node_rest_position(m_spec, right, 0)),
-                                                 to_bullet(node_rest_position(m_spec, left, n - 1)),
-                                                 to_bullet(node_rest_position(m_spec, right, n - 1)), n, n, 0, true));
+    m_cloth.reset(btSoftBodyHelpers::CreatePatch(info, bullet::to_bullet(node_rest_position(m_spec, left, 0)),
+                                                 bullet::to_bullet(node_rest_position(m_spec, right, 0)),
+                                                 bullet::to_bullet(node_rest_position(m_spec, left, n - 1)),
+                                                 bullet::to_bullet(node_rest_position(m_spec, right, n - 1)), n, n, 0, true));
     // Interpolation rounds differently from node_rest_position: put every node exactly where the spec
     // (and sinew) puts it, then take the links' rest lengths from there.
-    const btVector3 v0 = to_bullet(m_spec.initial_velocity);
+    const btVector3 v0 = bullet::to_bullet(m_spec.initial_velocity);
     for (int j = 0; j < n; ++j)
       for (int i = 0; i < n; ++i) {
         btSoftBody::Node& nd = m_cloth->m_nodes[bullet_index(j * n + i)];
-        nd.m_x = nd.m_q = to_bullet(node_rest_position(m_spec, i, j));
+        nd.m_x = nd.m_q = bullet::to_bullet(node_rest_position(m_spec, i, j));
         // m_vn is the deformable world's v_n: its implicit solve starts from it, not from m_v.
         nd.m_v = nd.m_vn = v0;
       }
@@ -183,7 +180,7 @@ class ClassicCurtain final : public BulletCurtain {
     m_cloth->m_materials[0]->m_kLST = btScalar(settings.link_stiffness);  // CreatePatch's one material
     soft_world.addSoftBody(m_cloth.get(), btBroadphaseProxy::DefaultFilter, kCollidesWithNothing);
     for (const BoundPivot& p : m_pivots)
-      m_cloth->appendAnchor(bullet_index(p.node), &m_rings->ring(p.ring), to_bullet(p.local), true);
+      m_cloth->appendAnchor(bullet_index(p.node), &m_rings->ring(p.ring), bullet::to_bullet(p.local), true);
   }
 
   std::string system() const override { return "bullet-classic"; }
@@ -308,7 +305,7 @@ class DeformableCurtain final : public BulletCurtain {
   double pre_overwrite_error() const {
     double worst = 0.0;
     for (const BoundPivot& p : m_pivots) {
-      const double e = (to_eigen(node(p.node).m_q) - m_rings->world_point(p.ring, p.local)).norm();
+      const double e = (bullet::to_eigen(node(p.node).m_q) - m_rings->world_point(p.ring, p.local)).norm();
       worst = std::isnan(e) ? kInfinity : std::max(worst, e);
     }
     return worst;

@@ -3,15 +3,14 @@
 #include <BulletDynamics/Dynamics/btActionInterface.h>
 #include <btBulletDynamicsCommon.h>
 
+#include "sinew/bullet/convert.hpp"
+
 #include <algorithm>
 #include <cmath>
 
 namespace sinew::bench {
 
 namespace {
-
-btVector3 to_bullet(const Vec3& v) { return btVector3(btScalar(v.x()), btScalar(v.y()), btScalar(v.z())); }
-Vec3 to_eigen(const btVector3& v) { return Vec3(v.x(), v.y(), v.z()); }
 
 bool positive(double v) { return std::isfinite(v) && v > 0.0; }
 
@@ -21,10 +20,6 @@ int round_ratio(long long a, long long b) { return static_cast<int>((2 * a + b) 
 
 // Ring k's position along the width, as a fraction in [0, 1].
 double ring_fraction(const CurtainSpec& spec, int k) { return spec.rings == 1 ? 0.5 : double(k) / (spec.rings - 1); }
-
-bool finite(const btVector3& v) { return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z()); }
-
-constexpr double kFarAway = 1000.0;  // [m]: the healthy() bound
 
 bool dynamic_parent(RingParent p) { return p == RingParent::dynamic || p == RingParent::sleeping; }
 
@@ -144,7 +139,7 @@ RodAndRings::RodAndRings(btDynamicsWorld& world, const CurtainSpec& spec) : m_wo
   m_rod = std::make_unique<btRigidBody>(btRigidBody::btRigidBodyConstructionInfo(0, m_states.back().get(), m_rod_shape.get()));
   m_world->addRigidBody(m_rod.get(), btBroadphaseProxy::StaticFilter, kCollidesWithNothing);
 
-  const btVector3 inertia = to_bullet(ring_inertia(spec));
+  const btVector3 inertia = bullet::to_bullet(ring_inertia(spec));
   const bool dynamic = dynamic_parent(spec.parent);
   if (spec.parent == RingParent::kinematic) {
     m_clock = std::make_unique<TickClock>(&m_time);
@@ -152,7 +147,7 @@ RodAndRings::RodAndRings(btDynamicsWorld& world, const CurtainSpec& spec) : m_wo
   }
   for (int k = 0; k < spec.rings; ++k) {
     const Vec3 centre = ring_rest_centre(spec, k);
-    const btTransform pose(btQuaternion::getIdentity(), to_bullet(centre));
+    const btTransform pose(btQuaternion::getIdentity(), bullet::to_bullet(centre));
     if (spec.parent == RingParent::kinematic)
       m_states.push_back(std::make_unique<KinematicSlide>(pose, spec.kinematic_speed, &m_time));
     else
@@ -162,7 +157,7 @@ RodAndRings::RodAndRings(btDynamicsWorld& world, const CurtainSpec& spec) : m_wo
         btRigidBody::btRigidBodyConstructionInfo(btScalar(mass), m_states.back().get(), m_ring_shape.get(), dynamic ? inertia : btVector3(0, 0, 0)));
     switch (spec.parent) {
       case RingParent::dynamic:
-        ring->setLinearVelocity(to_bullet(spec.initial_velocity));
+        ring->setLinearVelocity(bullet::to_bullet(spec.initial_velocity));
         ring->setAngularVelocity(btVector3(btScalar(spec.ring_spin), 0, 0));
         // Bullet 3.24's deformable anchors explode on sleeping bodies, and a sleeping ring would stop the
         // classic anchor's impulses too: keep every ring awake.
@@ -212,7 +207,7 @@ btRigidBody& RodAndRings::ring(int k) const {
   return *m_rings[static_cast<std::size_t>(k)];
 }
 
-Vec3 RodAndRings::world_point(int k, const Vec3& local) const { return to_eigen(ring(k).getWorldTransform() * to_bullet(local)); }
+Vec3 RodAndRings::world_point(int k, const Vec3& local) const { return bullet::to_eigen(ring(k).getWorldTransform() * bullet::to_bullet(local)); }
 
 double RodAndRings::joint_error() const {
   const double axis_y = m_rod->getWorldTransform().getOrigin().y(), axis_z = m_rod->getWorldTransform().getOrigin().z();
@@ -251,9 +246,9 @@ double RodAndRings::energy(double gravity) const {
 bool RodAndRings::healthy() const {
   for (const auto& ring : m_rings) {
     const btTransform& t = ring->getWorldTransform();
-    if (!finite(t.getOrigin()) || !finite(ring->getLinearVelocity()) || !finite(ring->getAngularVelocity())) return false;
+    if (!all_finite(t.getOrigin()) || !all_finite(ring->getLinearVelocity()) || !all_finite(ring->getAngularVelocity())) return false;
     for (int r = 0; r < 3; ++r)
-      if (!finite(t.getBasis()[r])) return false;
+      if (!all_finite(t.getBasis()[r])) return false;
     if (!(t.getOrigin().length() <= kFarAway)) return false;
   }
   return true;

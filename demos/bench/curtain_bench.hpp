@@ -10,6 +10,7 @@
 // static, kinematic or asleep (see RingParent).
 #pragma once
 
+#include "sinew/builders.hpp"
 #include "sinew/types.hpp"
 
 #include <memory>
@@ -18,6 +19,23 @@
 #include <vector>
 
 namespace sinew::bench {
+
+/// A node farther than this from the origin [m] has left the scene: the runs' healthy() bound.
+inline constexpr double kFarAway = 1000.0;
+
+/// sinew's cloth grid for a benchmark cloth (CurtainSpec, DropSpec): nodes, size, mass, stretch and
+/// bending from the spec; placement and the rest are the caller's.
+template <class ClothSpec>
+ClothGridSettings cloth_grid_of(const ClothSpec& spec) {
+  ClothGridSettings grid;
+  grid.nx = grid.ny = spec.n;
+  grid.width = grid.height = spec.size;
+  grid.mass = spec.cloth_mass;
+  grid.stretch_stiffness = spec.stretch_stiffness;
+  grid.stretch_damping = spec.stretch_damping;
+  grid.bending_stiffness = spec.bending_stiffness;
+  return grid;
+}
 
 /// What the rings are as Bullet bodies (the parents of the bound nodes).
 enum class RingParent {

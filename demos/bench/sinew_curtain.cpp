@@ -12,8 +12,6 @@ namespace sinew::bench {
 
 namespace {
 
-constexpr double kFarAway = 1000.0;  // [m]: the healthy() bound
-
 class SinewCurtain final : public SinewCurtainRun {
  public:
   SinewCurtain(const CurtainSpec& spec, const SinewSettings& settings) : m_spec(spec), m_settings(settings), m_pivots(bound_pivots(spec)) {
@@ -39,13 +37,7 @@ class SinewCurtain final : public SinewCurtainRun {
     m_coupling = std::make_unique<bullet::Coupling>(m_world.get(), coupling);
     System& system = m_coupling->system();
 
-    ClothGridSettings grid;
-    grid.nx = grid.ny = spec.n;
-    grid.width = grid.height = spec.size;
-    grid.mass = spec.cloth_mass;
-    grid.stretch_stiffness = spec.stretch_stiffness;
-    grid.stretch_damping = spec.stretch_damping;
-    grid.bending_stiffness = spec.bending_stiffness;
+    ClothGridSettings grid = cloth_grid_of(spec);
     grid.bending_implicit = spec.bending_implicit;
     grid.origin = node_rest_position(spec, 0, 0);
     grid.across = Vec3::UnitX();

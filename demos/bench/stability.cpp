@@ -20,6 +20,8 @@
 #include <BulletSoftBody/btSoftRigidDynamicsWorld.h>
 #include <btBulletDynamicsCommon.h>
 
+#include "sinew/bullet/convert.hpp"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -29,12 +31,6 @@
 namespace sinew::bench {
 
 namespace {
-
-constexpr double kFarAway = 1000.0;  // [m]: CurtainRun::healthy()'s bound
-
-btVector3 to_bullet(const Vec3& v) { return btVector3(btScalar(v.x()), btScalar(v.y()), btScalar(v.z())); }
-Vec3 to_eigen(const btVector3& v) { return Vec3(v.x(), v.y(), v.z()); }
-bool finite(const btVector3& v) { return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z()); }
 
 // ---- the drop scene -------------------------------------------------------------------------------
 // The plate's top face is at y = plate_thickness / 2, its bottom face at -plate_thickness / 2; the cloth
@@ -93,13 +89,7 @@ class SinewDrop final : public CurtainRun {
     coupling.friction = d.friction;
     m_coupling = std::make_unique<bullet::Coupling>(m_world.get(), coupling);
     System& system = m_coupling->system();
-    ClothGridSettings grid;
-    grid.nx = grid.ny = d.n;
-    grid.width = grid.height = d.size;
-    grid.mass = d.cloth_mass;
-    grid.stretch_stiffness = d.stretch_stiffness;
-    grid.stretch_damping = d.stretch_damping;
-    grid.bending_stiffness = d.bending_stiffness;
+    ClothGridSettings grid = cloth_grid_of(d);
     grid.bending_implicit = multigrid;
     grid.origin = drop_rest_position(d, 0, 0);
     grid.across = Vec3::UnitX();
@@ -173,7 +163,7 @@ class BulletDrop : public CurtainRun {
   void advance(double frame_dt, int steps) override { m_world->stepSimulation(btScalar(frame_dt), steps, btScalar(frame_dt / steps)); }
   Vectors3 nodes() const override {
     Vectors3 x(3, m_cloth->m_nodes.size());
-    for (int k = 0; k < m_cloth->m_nodes.size(); ++k) x.col(k) = to_eigen(m_cloth->m_nodes[k].m_x);
+    for (int k = 0; k < m_cloth->m_nodes.size(); ++k) x.col(k) = bullet::to_eigen(m_cloth->m_nodes[k].m_x);
     return x;
   }
   AttachmentError attachment() const override { return {}; }
@@ -194,7 +184,7 @@ class BulletDrop : public CurtainRun {
   bool healthy() const override {
     for (int k = 0; k < m_cloth->m_nodes.size(); ++k) {
       const btSoftBody::Node& n = m_cloth->m_nodes[k];
-      if (!finite(n.m_x) || !finite(n.m_v) || !(n.m_x.length() <= kFarAway)) return false;
+      if (!all_finite(n.m_x) || !all_finite(n.m_v) || !(n.m_x.length() <= kFarAway)) return false;
     }
     return true;
   }
@@ -206,13 +196,13 @@ class BulletDrop : public CurtainRun {
   // The cloth, not yet in the world.
   void build_cloth(btSoftBodyWorldInfo& info) {
     const int n = m_spec.n;
-    m_cloth.reset(btSoftBodyHelpers::CreatePatch(info, to_bullet(drop_rest_position(m_spec, 0, 0)), to_bullet(drop_rest_position(m_spec, n - 1, 0)),
-                                                 to_bullet(drop_rest_position(m_spec, 0, n - 1)),
-                                                 to_bullet(drop_rest_position(m_spec, n - 1, n - 1)), n, n, 0, true));
+    m_cloth.reset(btSoftBodyHelpers::CreatePatch(info, bullet::to_bullet(drop_rest_position(m_spec, 0, 0)), bullet::to_bullet(drop_rest_position(m_spec, n - 1, 0)),
+                                                 bullet::to_bullet(drop_rest_position(m_spec, 0, n - 1)),
+                                                 bullet::to_bullet(drop_rest_position(m_spec, n - 1, n - 1)), n, n, 0, true));
     for (int j = 0; j < n; ++j)
       for (int i = 0; i < n; ++i) {
         btSoftBody::Node& nd = m_cloth->m_nodes[j * n + i];
-        nd.m_x = nd.m_q = to_bullet(drop_rest_position(m_spec, i, j));
+        nd.m_x = nd.m_q = bullet::to_bullet(drop_rest_position(m_spec, i, j));
         nd.m_v = nd.m_vn = btVector3(0, btScalar(-m_spec.drop_speed), 0);
       }
     m_cloth->resetLinkRestLengths();

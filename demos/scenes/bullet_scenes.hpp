@@ -6,6 +6,7 @@
 
 #include "cloth.hpp"
 #include "scene.hpp"
+#include "sinew/bullet/convert.hpp"
 #include "sinew/bullet/coupling.hpp"
 
 #include <btBulletDynamicsCommon.h>
@@ -16,10 +17,19 @@
 
 namespace sinew::scenes {
 
-inline Vec3 to_eigen(const btVector3& v) { return Vec3(v.x(), v.y(), v.z()); }
-inline btVector3 to_bullet(const Vec3& v) { return btVector3(btScalar(v.x()), btScalar(v.y()), btScalar(v.z())); }
+using bullet::to_bullet;
+using bullet::to_eigen;
 inline btTransform at(const btVector3& origin, const btQuaternion& rotation = btQuaternion::getIdentity()) {
   return btTransform(rotation, origin);
+}
+
+/// The registry entry of a Bullet scene class with a default constructor: `info` gives its name,
+/// description and gallery frame; its kind and factory follow from the class.
+template <class SceneType>
+SceneInfo bullet_scene(SceneInfo info) {
+  info.kind = SceneKind::bullet;
+  info.make = construct<SceneType>;
+  return info;
 }
 
 /// A Bullet world that owns its shapes, motion states, bodies and constraints.

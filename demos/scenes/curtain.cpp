@@ -98,11 +98,9 @@ class Curtain final : public BulletScene {
   double m_handle_y = 0.0;
 };
 
-SINEW_REGISTER_SCENE({.name = "curtain",
-                      .description = "figure 15: a cloth curtain on ten rings sliding along a rod, drawn closed and open by a handle (the main demo)",
-                      .kind = SceneKind::bullet,
-                      .make = construct<Curtain>,
-                      .gallery_frame = 150});
+SINEW_REGISTER_SCENE(bullet_scene<Curtain>({.name = "curtain",
+                                          .description = "figure 15: a cloth curtain on ten rings sliding along a rod, drawn closed and open by a handle (the main demo)",
+                                          .gallery_frame = 150}));
 
 }  // namespace
 }  // namespace sinew::scenes

@@ -60,11 +60,9 @@ class Net final : public BulletScene {
   btRigidBody* m_ball = nullptr;
 };
 
-SINEW_REGISTER_SCENE({.name = "net",
-                      .description = "figure 13: a net of rigid rods joined by binding springs, held at its corners, catching a 5 kg ball",
-                      .kind = SceneKind::bullet,
-                      .make = construct<Net>,
-                      .gallery_frame = 100});
+SINEW_REGISTER_SCENE(bullet_scene<Net>({.name = "net",
+                                          .description = "figure 13: a net of rigid rods joined by binding springs, held at its corners, catching a 5 kg ball",
+                                          .gallery_frame = 100}));
 
 }  // namespace
 }  // namespace sinew::scenes

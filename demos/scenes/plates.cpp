@@ -49,11 +49,9 @@ class Plates final : public BulletScene {
   }
 };
 
-SINEW_REGISTER_SCENE({.name = "plates",
-                      .description = "figure 14: three rigid plates joined by hard-bound cloth sheets, hung from two Bullet point constraints, swinging",
-                      .kind = SceneKind::bullet,
-                      .make = construct<Plates>,
-                      .gallery_frame = 150});
+SINEW_REGISTER_SCENE(bullet_scene<Plates>({.name = "plates",
+                                          .description = "figure 14: three rigid plates joined by hard-bound cloth sheets, hung from two Bullet point constraints, swinging",
+                                          .gallery_frame = 150}));
 
 }  // namespace
 }  // namespace sinew::scenes

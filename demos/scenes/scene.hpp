@@ -107,9 +107,10 @@ class CoreScene : public Scene {
 #define SINEW_SCENE_CONCAT_(a, b) a##b
 #define SINEW_SCENE_CONCAT(a, b) SINEW_SCENE_CONCAT_(a, b)
 /// Registers a scene when the program starts: SINEW_REGISTER_SCENE({.name = ..., .description = ...,
-/// .kind = ..., .make = ...}); one line in the scene's own file. The file must reach the program as
+/// .kind = ..., .make = ...}), or any expression giving a SceneInfo (bullet_scene<T>({...})); one
+/// line in the scene's own file. The file must reach the program as
 /// an object file (demos/CMakeLists.txt's OBJECT scene libraries, or a test's own sources): a static
 /// archive would drop it, since nothing refers to it by name.
 #define SINEW_REGISTER_SCENE(...)                                                                \
   [[maybe_unused]] static const bool SINEW_SCENE_CONCAT(sinew_scene_registered_, __COUNTER__) = \
-      ::sinew::scenes::register_scene(::sinew::scenes::SceneInfo __VA_ARGS__)
+      ::sinew::scenes::register_scene(__VA_ARGS__)

@@ -1,5 +1,7 @@
 #include "sinew/bullet/collisions.hpp"
 
+#include "sinew/bullet/convert.hpp"
+
 #include <BulletCollision/NarrowPhaseCollision/btGjkEpa2.h>
 
 #include <algorithm>
@@ -8,9 +10,6 @@
 namespace sinew::bullet {
 
 namespace {
-
-Vec3 to_eigen(const btVector3& v) { return Vec3(v.x(), v.y(), v.z()); }
-btVector3 to_bullet(const Vec3& v) { return btVector3(btScalar(v.x()), btScalar(v.y()), btScalar(v.z())); }
 
 // Box of half extents h centred at the origin, local frame.
 double box_distance(const Vec3& h, const Vec3& p, Vec3& n) {

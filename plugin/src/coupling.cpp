@@ -1,6 +1,7 @@
 #include "sinew/bullet/coupling.hpp"
 
 #include "sinew/bullet/collisions.hpp"
+#include "sinew/bullet/convert.hpp"
 
 #include <btBulletDynamicsCommon.h>
 
@@ -35,9 +36,78 @@ Coupling* find_coupling(btDynamicsWorld* world) {
   return nullptr;
 }
 
-Vec3 to_eigen(const btVector3& v) { return Vec3(v.x(), v.y(), v.z()); }
-btVector3 to_bullet(const Vec3& v) { return btVector3(btScalar(v.x()), btScalar(v.y()), btScalar(v.z())); }
-Quat to_eigen(const btQuaternion& q) { return Quat(q.w(), q.x(), q.y(), q.z()).normalized(); }
+// Bullet's solver uses a row stride of 4 or more (16-byte rows), and some joints write a row as a
+// btVector3, four scalars: stride 4, and one spare row at the end of every array.
+constexpr int kJointRowSkip = 4;
+
+// Calls joint.getInfo2 as Bullet's solver prepares it: eight arrays (J1 linear, J1 angular, J2 linear,
+// J2 angular, error, cfm, lower and upper limits) in `buffer`, each striding by rowskip as the solver's
+// row structs do, the global CFM on the first row only and unbounded limits for the joint to narrow.
+btTypedConstraint::btConstraintInfo2 joint_info2(btTypedConstraint& joint, int rows, const btContactSolverInfo& solver,
+                                                 double dt, std::vector<btScalar>& buffer) {
+  constexpr int skip = kJointRowSkip;
+  const int length = skip * (rows + 1);
+  buffer.assign(static_cast<std::size_t>(8 * length), btScalar(0));
+  btScalar* array[8];
+  for (int k = 0; k < 8; ++k) array[k] = buffer.data() + k * length;
+  btTypedConstraint::btConstraintInfo2 info2;
+  info2.fps = btScalar(1.0 / dt);
+  info2.erp = solver.m_erp;
+  info2.m_J1linearAxis = array[0];
+  info2.m_J1angularAxis = array[1];
+  info2.m_J2linearAxis = array[2];
+  info2.m_J2angularAxis = array[3];
+  info2.rowskip = skip;
+  info2.m_constraintError = array[4];
+  info2.cfm = array[5];
+  info2.m_lowerLimit = array[6];
+  info2.m_upperLimit = array[7];
+  info2.cfm[0] = solver.m_globalCfm;
+  for (int r = 0; r < rows; ++r) {
+    info2.m_lowerLimit[skip * r] = -SIMD_INFINITY;
+    info2.m_upperLimit[skip * r] = SIMD_INFINITY;
+  }
+  info2.m_numIterations = solver.m_numIterations;
+  info2.m_damping = solver.m_damping;
+  joint.getInfo2(&info2);
+  return info2;
+}
+
+// Rows the joint bounded (limits, motors) or softened (a CFM of its own) stay Bullet's.
+bool is_equality_row(const btTypedConstraint::btConstraintInfo2& info2, int r, btScalar global_cfm) {
+  constexpr int skip = kJointRowSkip;
+  const btScalar seeded_cfm = r == 0 ? global_cfm : btScalar(0);
+  return !(info2.m_lowerLimit[skip * r] > -SIMD_INFINITY || info2.m_upperLimit[skip * r] < SIMD_INFINITY ||
+           info2.cfm[skip * r] > seeded_cfm);
+}
+
+// Row r between coupled bodies a and b (-1: outside the coupling). A body outside the coupling keeps
+// its velocity (twist_a, twist_b: linear then angular, world): its part of the row moves to the target.
+JointRow joint_row(const btTypedConstraint::btConstraintInfo2& info2, int r, Index a, Index b, const Vec6& twist_a,
+                   const Vec6& twist_b) {
+  constexpr int skip = kJointRowSkip;
+  Vec6 j_a, j_b;
+  for (int d = 0; d < 3; ++d) {
+    j_a[d] = info2.m_J1linearAxis[skip * r + d];
+    j_a[3 + d] = info2.m_J1angularAxis[skip * r + d];
+    j_b[d] = info2.m_J2linearAxis[skip * r + d];
+    j_b[3 + d] = info2.m_J2angularAxis[skip * r + d];
+  }
+  JointRow row;
+  if (a >= 0) {
+    row.body_a = a;
+    row.j_a = j_a;
+  } else {
+    row.target -= j_a.dot(twist_a);
+  }
+  if (b >= 0) {
+    (a >= 0 ? row.body_b : row.body_a) = b;
+    (a >= 0 ? row.j_b : row.j_a) = j_b;
+  } else {
+    row.target -= j_b.dot(twist_b);
+  }
+  return row;
+}
 
 }  // namespace
 
@@ -233,6 +303,7 @@ void Coupling::copy_joints_in(double dt) {
     return -1;
   };
   const RigidBodyParticles& bodies = m_system.rigid_bodies();
+  const btContactSolverInfo& solver = m_world->getSolverInfo();
   for (int c = 0; c < m_world->getNumConstraints(); ++c) {
     btTypedConstraint* joint = m_world->getConstraint(c);
     // A breakable joint's rows are bounded by its threshold: Bullet alone decides when it breaks.
@@ -245,65 +316,12 @@ void Coupling::copy_joints_in(double dt) {
     joint->getInfo1(&info1);
     const int rows = info1.m_numConstraintRows;
     if (rows <= 0) continue;
-    // Eight arrays: J1 linear, J1 angular, J2 linear, J2 angular, error, cfm, lower and upper limits.
-    // Bullet's solver points them into its row structs, so every one of them strides by rowskip.
-    // Bullet's solver uses a row stride of 4 or more (16-byte rows), and some joints write a row as a
-    // btVector3, four scalars: stride 4, and one spare row at the end of every array.
-    constexpr int skip = 4;
-    const int length = skip * (rows + 1);
-    m_joint_buffer.assign(static_cast<std::size_t>(8 * length), btScalar(0));
-    btScalar* array[8];
-    for (int k = 0; k < 8; ++k) array[k] = m_joint_buffer.data() + k * length;
-    btTypedConstraint::btConstraintInfo2 info2;
-    info2.fps = btScalar(1.0 / dt);
-    info2.erp = m_world->getSolverInfo().m_erp;
-    info2.m_J1linearAxis = array[0];
-    info2.m_J1angularAxis = array[1];
-    info2.m_J2linearAxis = array[2];
-    info2.m_J2angularAxis = array[3];
-    info2.rowskip = skip;
-    info2.m_constraintError = array[4];
-    info2.cfm = array[5];
-    info2.m_lowerLimit = array[6];
-    info2.m_upperLimit = array[7];
-    // As Bullet's solver prepares them: the global CFM on the first row only, unbounded limits.
-    const btScalar global_cfm = m_world->getSolverInfo().m_globalCfm;
-    info2.cfm[0] = global_cfm;
-    for (int r = 0; r < rows; ++r) {
-      info2.m_lowerLimit[skip * r] = -SIMD_INFINITY;
-      info2.m_upperLimit[skip * r] = SIMD_INFINITY;
-    }
-    info2.m_numIterations = m_world->getSolverInfo().m_numIterations;
-    info2.m_damping = m_world->getSolverInfo().m_damping;
-    joint->getInfo2(&info2);
+    const btTypedConstraint::btConstraintInfo2 info2 = joint_info2(*joint, rows, solver, dt, m_joint_buffer);
     const Vec6 twist_a = (Vec6() << to_eigen(body_a.getLinearVelocity()), to_eigen(body_a.getAngularVelocity())).finished();
     const Vec6 twist_b = (Vec6() << to_eigen(body_b.getLinearVelocity()), to_eigen(body_b.getAngularVelocity())).finished();
     for (int r = 0; r < rows; ++r) {
-      // Rows the joint bounded (limits, motors) or softened (a CFM of its own) stay Bullet's.
-      const btScalar seeded_cfm = r == 0 ? global_cfm : btScalar(0);
-      if (info2.m_lowerLimit[skip * r] > -SIMD_INFINITY || info2.m_upperLimit[skip * r] < SIMD_INFINITY || info2.cfm[skip * r] > seeded_cfm)
-        continue;
-      Vec6 j_a, j_b;
-      for (int d = 0; d < 3; ++d) {
-        j_a[d] = info2.m_J1linearAxis[skip * r + d];
-        j_a[3 + d] = info2.m_J1angularAxis[skip * r + d];
-        j_b[d] = info2.m_J2linearAxis[skip * r + d];
-        j_b[3 + d] = info2.m_J2angularAxis[skip * r + d];
-      }
-      JointRow row;
-      // A body outside the coupling keeps its velocity: its part of the row moves to the target.
-      if (a >= 0) {
-        row.body_a = a;
-        row.j_a = j_a;
-      } else {
-        row.target -= j_a.dot(twist_a);
-      }
-      if (b >= 0) {
-        (a >= 0 ? row.body_b : row.body_a) = b;
-        (a >= 0 ? row.j_b : row.j_a) = j_b;
-      } else {
-        row.target -= j_b.dot(twist_b);
-      }
+      if (!is_equality_row(info2, r, solver.m_globalCfm)) continue;
+      const JointRow row = joint_row(info2, r, a, b, twist_a, twist_b);
       if (row.j_a.isZero(0.0) && row.j_b.isZero(0.0)) continue;
       m_joint_rows.push_back(row);
     }

@@ -1,10 +1,8 @@
 #include "sinew/bullet/shapes.hpp"
 
-namespace sinew::bullet {
+#include "sinew/bullet/convert.hpp"
 
-namespace {
-btVector3 to_bullet(const Vec3& v) { return btVector3(btScalar(v.x()), btScalar(v.y()), btScalar(v.z())); }
-}  // namespace
+namespace sinew::bullet {
 
 MeshShape convex_hull_shape(const Vectors3& vertices) {
   if (vertices.cols() < 3) fail("convex hull shape: needs at least 3 vertices, got ", vertices.cols());

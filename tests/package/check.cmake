@@ -1,19 +1,8 @@
 # Installs the built sinew into a scratch prefix, configures and builds tests/package against it, and
 # runs the result. Arguments: -DBUILD_DIR=... -DSOURCE_DIR=... -DWORK_DIR=...
+include("${CMAKE_CURRENT_LIST_DIR}/outside_project.cmake")
 file(REMOVE_RECURSE "${WORK_DIR}")
-execute_process(COMMAND ${CMAKE_COMMAND} --install "${BUILD_DIR}" --prefix "${WORK_DIR}/prefix" RESULT_VARIABLE rc)
-if(rc)
-  message(FATAL_ERROR "install failed")
-endif()
-execute_process(COMMAND ${CMAKE_COMMAND} -S "${SOURCE_DIR}/tests/package" -B "${WORK_DIR}/build"
-                        -DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix -DCMAKE_BUILD_TYPE=Release RESULT_VARIABLE rc)
-if(rc)
-  message(FATAL_ERROR "configuring the outside project failed")
-endif()
-execute_process(COMMAND ${CMAKE_COMMAND} --build "${WORK_DIR}/build" RESULT_VARIABLE rc)
-if(rc)
-  message(FATAL_ERROR "building the outside project failed")
-endif()
+sinew_build_outside_project("${BUILD_DIR}" "${SOURCE_DIR}/tests/package" "${WORK_DIR}" "the outside project")
 execute_process(COMMAND "${WORK_DIR}/build/consumer" WORKING_DIRECTORY "${WORK_DIR}" RESULT_VARIABLE rc)
 if(rc)
   message(FATAL_ERROR "the outside project's program failed")

@@ -51,20 +51,9 @@ message(STATUS "${README}: ${blocks} C++ block(s)")
 file(WRITE "${WORK_DIR}/src/CMakeLists.txt"
      "cmake_minimum_required(VERSION 3.25)\nproject(sinew_readme LANGUAGES CXX)\n"
      "find_package(sinew REQUIRED)\n${targets}")
-execute_process(COMMAND ${CMAKE_COMMAND} --install "${BUILD_DIR}" --prefix "${WORK_DIR}/prefix"
-                OUTPUT_QUIET RESULT_VARIABLE rc)
-if(rc)
-  message(FATAL_ERROR "install failed")
-endif()
-execute_process(COMMAND ${CMAKE_COMMAND} -S "${WORK_DIR}/src" -B "${WORK_DIR}/build"
-                        -DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix -DCMAKE_BUILD_TYPE=Release RESULT_VARIABLE rc)
-if(rc)
-  message(FATAL_ERROR "configuring the README's blocks failed")
-endif()
-execute_process(COMMAND ${CMAKE_COMMAND} --build "${WORK_DIR}/build" RESULT_VARIABLE rc)
-if(rc)
-  message(FATAL_ERROR "a ```cpp block of ${README} does not compile (see above; the blocks are in ${WORK_DIR}/src)")
-endif()
+include("${CMAKE_CURRENT_LIST_DIR}/../package/outside_project.cmake")
+sinew_build_outside_project("${BUILD_DIR}" "${WORK_DIR}/src" "${WORK_DIR}"
+                            "the ```cpp blocks of ${README} (one per file in ${WORK_DIR}/src)")
 foreach(program IN LISTS programs)
   execute_process(COMMAND "${WORK_DIR}/build/${program}" WORKING_DIRECTORY "${WORK_DIR}" RESULT_VARIABLE rc)
   if(rc)

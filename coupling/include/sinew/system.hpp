@@ -78,16 +78,19 @@ struct StepSettings {
   /// would tighten for a good initial guess (step 4 starts from step 1's answer) and loosen for a
   /// poor one, and one relative to |v| would loosen with speed.
   double cg_tolerance = 1e-9;
+  /// CG stops after this many iterations and the step goes on with what it has (StepStats::cg_converged
+  /// turns false): a bound on the step's cost when a solve stalls, not a convergence criterion.
   int cg_max_iterations = 1000;
   /// Block Jacobi: each particle's 3x3 diagonal block of the implicit system (from forces that
-  /// provide them, Force::add_implicit_diagonal_blocks, else a third of their trace times I), each
+  /// provide them, ImplicitBlocks::add_diagonal_blocks, else a third of their trace times I), each
   /// rigid body's 6x6 block with what its hard-bound points carry. Off: the mass matrix alone.
   bool jacobi_preconditioner = true;
   /// Aggregation multigrid on the particles (one V-cycle per CG iteration, block-Jacobi smoothing,
   /// coarse operators summed from the forces' pair blocks), the rigid bodies' 6x6 blocks as in block
   /// Jacobi. Its iteration count hardly grows with resolution or step where block Jacobi's grows as
-  /// dt / dx, so it pays off for implicit elasticity at large steps or fine meshes; a V-cycle costs
-  /// about three products of the implicit system. Needs jacobi_preconditioner.
+  /// dt / dx, so it pays off for implicit elasticity at large steps or fine meshes, where fewer
+  /// iterations outweigh a V-cycle's cost of a few products of the implicit system (figures:
+  /// demos/bench/README.md). Needs jacobi_preconditioner.
   bool multigrid = false;
   /// Elastic forces with a definite differential (edge springs) enter both velocity solves
   /// implicitly, linearised once: (M - dt/2 D - dt^2/4 K+) v = M v_start + dt/2 F(x), at x^n in
@@ -98,25 +101,30 @@ struct StepSettings {
   /// With implicit_elasticity: Newton iterations after step 1's solve. Each relinearises the implicit
   /// forces where the half step ends, x^n + dt/2 v~^{n+1/2} (F(x_mid) and K+(x_mid)), and solves step
   /// 1 again: (M - dt/2 D - dt^2/4 K+) v = M v^n + dt/2 F(x_mid) - dt^2/4 K+ v_prev. One linearisation
-  /// is too coarse where a long step turns the springs a lot: a 20x20 curtain at one 1/24 s step
-  /// gains energy at each step (up to its whole scale); one iteration holds it. Each costs a force
-  /// evaluation and a solve (measured: a 1/60 s multigrid cloth step 26-31% dearer). Every force is
-  /// evaluated at x_mid, so forces kept explicit (tets, membranes, bending without its implicit flag)
-  /// take a fixed-point update there instead of staying at x^n. K+ drops the indefinite part of the stiffness, so the
-  /// iterations converge linearly, not quadratically (on a cloth hung from a free rod at 1/24 s the
-  /// position changes shrank 9.1e-3, 3.6e-3, 2.8e-3 m): one or two are what pays.
+  /// is too coarse where a long step turns the springs a lot: a cloth at one long step per frame can
+  /// gain energy at each step, which one iteration holds. Each costs a force evaluation and a solve.
+  /// Every force is evaluated at x_mid, so forces kept explicit (tets, membranes, bending without its
+  /// implicit flag) take a fixed-point update there instead of staying at x^n. K+ drops the indefinite
+  /// part of the stiffness, so the iterations converge linearly, not quadratically: one or two are
+  /// what pays (figures behind this: demos/bench/README.md).
   int newton_iterations = 0;
   /// Threads for the step's loops (0: every hardware thread). Results are bit-identical for any
   /// count (sinew/parallel.hpp); small scenes stay on one thread whatever this says.
   int threads = 1;
   Step1Guess step1_guess = Step1Guess::adaptive;
   BindingSpringStep4 binding_springs_in_step4 = BindingSpringStep4::implicit_half_step;
-  double cfl = 0.9;                 ///< fraction of the elastic stable step used by advance()
+  /// Fraction of the elastic stable step used by advance(), in (0, 1]: the stable step is an
+  /// estimate, so a margin below 1 keeps advance() clear of its edge.
+  double cfl = 0.9;
+  /// advance() throws rather than take more substeps than this in one frame: a stable step that
+  /// small usually means a stiffness or mass set wrongly, not a scene worth grinding through.
   int max_substeps = 100000;
   /// Second-order rotation update: w^{n+1/2} ~ w + dt/2 I^-1 (L x w) for the torque-free drift of
   /// the angular velocity of an asymmetric body.
   bool gyroscopic_correction = true;
 };
+/// Throws sinew::Error naming the first setting out of range; System::step and advance call it.
+void validate(const StepSettings& settings);
 
 /// One row of a joint between rigid-body particles (a rigid solver's bilateral constraint, for
 /// instance a slider's): J_a . (v_a, w_a) + J_b . (v_b, w_b) = target, with v the centre-of-mass

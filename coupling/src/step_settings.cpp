@@ -1,0 +1,21 @@
+#include "sinew/system.hpp"
+
+#include <cmath>
+
+namespace sinew {
+
+void validate(const StepSettings& s) {
+  // Each setting is checked by name, so that a caller who set one wrongly reads which and why.
+  if (!(std::isfinite(s.cg_tolerance) && s.cg_tolerance > 0.0))
+    fail("step settings: cg_tolerance = ", s.cg_tolerance, ", must be positive and finite");
+  if (s.cg_max_iterations < 1) fail("step settings: cg_max_iterations = ", s.cg_max_iterations, ", must be >= 1");
+  if (s.newton_iterations < 0) fail("step settings: newton_iterations = ", s.newton_iterations, ", must be >= 0");
+  if (s.threads < 0) fail("step settings: threads = ", s.threads, ", must be >= 0 (0: every hardware thread)");
+  // Above 1 the substep exceeds the explicit forces' stable step: advance() would diverge by design.
+  if (!(s.cfl > 0.0 && s.cfl <= 1.0)) fail("step settings: cfl = ", s.cfl, ", must be in (0, 1]");
+  if (s.max_substeps < 1) fail("step settings: max_substeps = ", s.max_substeps, ", must be >= 1");
+  if (s.multigrid && !s.jacobi_preconditioner)
+    fail("step settings: multigrid needs jacobi_preconditioner (block Jacobi is its finest level)");
+}
+
+}  // namespace sinew
