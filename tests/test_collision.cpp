@@ -1,6 +1,7 @@
 // Collision sources (step 3) and their weighted-stencil constraints in step 4.
 #include "sinew/builders.hpp"
 #include "sinew/system.hpp"
+#include "test_util.hpp"
 
 #include <gtest/gtest.h>
 
@@ -43,10 +44,7 @@ class CentroidFloor final : public CollisionSource {
 };
 
 ClothGridSettings flat_cloth() {
-  ClothGridSettings c;
-  c.nx = c.ny = 5;
-  c.width = c.height = 0.4;
-  c.origin = Vec3(-0.2, 0.01, -0.2);
+  ClothGridSettings c = test::square_cloth(5, 0.4, Vec3(-0.2, 0.01, -0.2));
   c.down = Vec3::UnitZ();
   c.mass = 0.1;
   return c;

@@ -47,11 +47,8 @@ struct FloatingScene {
     rb.mass = 1.0;
     rb.inertia = Vec3(0.1, 0.2, 0.25);
     body = system.add_rigid_body(rb);
-    scenes::ClothGridSettings c;
-    c.nx = c.ny = 6;
-    c.width = c.height = 0.5;
+    scenes::ClothGridSettings c = test::square_cloth(6, 0.5, Vec3(-0.25, 0.3, 0.0));
     c.mass = 0.2;
-    c.origin = Vec3(-0.25, 0.3, 0.0);
     c.stretch_stiffness = 50.0;
     c.stretch_damping = 0.1;
     c.bending_stiffness = 1e-4;
@@ -298,11 +295,7 @@ TEST(System, ClothBoundToKinematicBodyFollowsItExactly) {
   rb.v = Vec3(0.2, 0.0, -0.1);
   rb.w = Vec3(0.0, 1.5, 0.3);
   const Index body = s.add_rigid_body(rb);
-  scenes::ClothGridSettings c;
-  c.nx = c.ny = 6;
-  c.width = c.height = 0.5;
-  c.origin = Vec3(-0.25, 1.0, 0.0);
-  const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
+  const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, test::square_cloth(6, 0.5, Vec3(-0.25, 1.0, 0.0)));
   for (int i = 0; i < 6; ++i) s.bind_rigid_here(cloth.node(i, 0), body);
   s.finalize();
   const Vec3 r0 = s.hard_bindings().rigid_offset_body(0);
@@ -328,11 +321,7 @@ TEST(System, RemovingBindingsAtRunTimeReleasesTheCloth) {
     bar.kinematic = true;
     bar.x = Vec3(0, 2.0, 0);
     const Index body = s.add_rigid_body(bar);
-    scenes::ClothGridSettings c;
-    c.nx = c.ny = 8;
-    c.width = c.height = 0.7;
-    c.origin = Vec3(-0.35, 2.0, 0);
-    const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
+    const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, test::square_cloth(8, 0.7, Vec3(-0.35, 2.0, 0)));
     std::vector<Index> springs_of_top;
     for (int i = 0; i < 8; ++i) {
       if (!springs) {

@@ -3,6 +3,7 @@
 #include "sinew/builders.hpp"
 #include "sinew/forces/edge_springs.hpp"
 #include "sinew/system.hpp"
+#include "test_util.hpp"
 
 #include <gtest/gtest.h>
 
@@ -13,11 +14,8 @@ namespace sinew {
 namespace {
 
 ClothGridSettings cloth_settings() {
-  ClothGridSettings c;
-  c.nx = c.ny = 6;
-  c.width = c.height = 0.5;
+  ClothGridSettings c = test::square_cloth(6, 0.5, Vec3(-0.25, 1.0, 0.0));
   c.mass = 0.36;
-  c.origin = Vec3(-0.25, 1.0, 0.0);
   c.stretch_stiffness = 80.0;
   c.stretch_damping = 0.05;
   c.bending_stiffness = 1e-3;

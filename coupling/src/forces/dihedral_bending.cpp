@@ -526,8 +526,7 @@ Mat3 DihedralBending::pair_block(Index k, double b) const {
 // particle in element_bound_stable_dt). Away from rest the delta * Hessian(theta) term adds
 // stiffness of either sign, which this estimate ignores.
 double DihedralBending::stable_dt(const VectorXd& m_eff) const {
-  detail::check_mass_count(kName, m_eff, static_cast<Index>(m_incidence_offsets.size()) - 1);
-  return detail::element_bound_stable_dt(m_hinges, m_dt_weights, m_incidence_offsets, m_incidence, m_eff);
+  return detail::element_bound_stable_dt(kName, m_hinges, m_dt_weights, m_incidence_offsets, m_incidence, m_eff);
 }
 
 Index DihedralBending::remove_elements_touching(std::span<const std::uint8_t> removed) {

@@ -192,18 +192,15 @@ void EdgeSprings::add_implicit_products(const Vectors3& v, double b, Vectors3& f
       _mm_storeu_pd(g, _mm_unpacklo_pd(f0, f1));      // edge e: f0, f1
       _mm_storeu_pd(g + 2, _mm_shuffle_pd(f2, f0, 2));  // edge e: f2; edge e + 1: f0
       _mm_storeu_pd(g + 4, _mm_unpackhi_pd(f1, f2));  // edge e + 1: f1, f2
-      out[i0] += g[0];
-      out[i0 + 1] += g[1];
-      out[i0 + 2] += g[2];
-      out[j0] -= g[0];
-      out[j0 + 1] -= g[1];
-      out[j0 + 2] -= g[2];
-      out[i1] += g[3];
-      out[i1 + 1] += g[4];
-      out[i1 + 2] += g[5];
-      out[j1] -= g[3];
-      out[j1 + 1] -= g[4];
-      out[j1 + 2] -= g[5];
+      // Each coordinate receives edge e's term, then edge e + 1's: the order of the scalar loop.
+      for (int k = 0; k < 3; ++k) {
+        out[i0 + k] += g[k];
+        out[j0 + k] -= g[k];
+      }
+      for (int k = 0; k < 3; ++k) {
+        out[i1 + k] += g[3 + k];
+        out[j1 + k] -= g[3 + k];
+      }
     }
 #endif
     for (; e < chunk.end; ++e) {

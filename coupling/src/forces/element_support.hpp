@@ -99,10 +99,11 @@ struct Incidence {
 /// the central-difference (explicit Newmark) update is bounded from below by 2/sqrt(that sum).
 /// Rows with zero inverse mass drop out: they are eliminated, not advanced.
 template <std::size_t K>
-double element_bound_stable_dt(const std::vector<std::array<Index, K>>& elements,
+double element_bound_stable_dt(std::string_view force, const std::vector<std::array<Index, K>>& elements,
                                const std::vector<std::array<double, K>>& weights,
                                const std::vector<Index>& incidence_offsets, const std::vector<Index>& incidence,
                                const VectorXd& m_eff) {
+  check_mass_count(force, m_eff, static_cast<Index>(incidence_offsets.size()) - 1);
   double omega_sq = 0.0;
   const Index n = static_cast<Index>(incidence_offsets.size()) - 1;
   for (Index i = 0; i < n; ++i) {

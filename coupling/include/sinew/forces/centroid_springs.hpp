@@ -2,16 +2,16 @@
 #pragma once
 
 #include "sinew/force.hpp"
+#include "sinew/forces/edge_springs.hpp"
 #include "sinew/parallel.hpp"
 
 #include <vector>
 
 namespace sinew {
 
-struct CentroidSpringsSettings {
-  double stiffness = 1.0e3;  ///< k [N/m], the same for every element; finite, >= 0
-  double damping = 0.0;      ///< b [N s/m], along the current spring direction; finite, >= 0
-};
+/// An edge spring's two settings: k [N/m] for every element, b [N s/m] along the current spring
+/// direction.
+using CentroidSpringsSettings = EdgeSpringsSettings;
 
 /// Element e ties its first node p to the centroid c of the others (its neighbourhood N, any size
 /// from 1): Psi = k/2 (|x_p - c| - l0)^2, l0 from the rest positions. The stencils are compressed
