@@ -62,10 +62,13 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
-  std::printf("machine: %s, %u hardware threads; sinew threads: %d\n", cpu_model().c_str(), std::thread::hardware_concurrency(), threads);
-  std::printf("scene: cloth n x n, 2 m x 2 m, 0.5 kg, springs k=200 N/m b=0.05, bending 1e-4, binding springs 1e5 N/m to a 0.5 kg rod\n");
-  std::printf("%5s %7s %9s %10s %9s %8s %8s %8s %8s %8s %9s %12s\n", "n", "nodes", "dt [ms]", "ms/step", "step1", "step2",
-              "step3", "step4", "step5", "cg it", "ms/sim-s", "edge err [m]");
+  std::printf("machine: %s, %u hardware threads; sinew threads: %d\n", cpu_model().c_str(),
+              std::thread::hardware_concurrency(), threads);
+  std::printf(
+      "scene: cloth n x n, 2 m x 2 m, 0.5 kg, springs k=200 N/m b=0.05, bending 1e-4, binding springs 1e5 N/m to a 0.5 "
+      "kg rod\n");
+  std::printf("%5s %7s %9s %10s %9s %8s %8s %8s %8s %8s %9s %12s\n", "n", "nodes", "dt [ms]", "ms/step", "step1",
+              "step2", "step3", "step4", "step5", "cg it", "ms/sim-s", "edge err [m]");
   for (int n : sizes) {
     std::vector<double> total, p1, p2, p3, p4, p5, iterations;
     double dt = 0.0;
@@ -83,7 +86,8 @@ int main(int argc, char** argv) {
         sum += s.ms;
         cg += s.cg_iterations_step1 + s.cg_iterations_step4;
       }
-      total.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count() / steps);
+      total.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count() /
+                      steps);
       p1.push_back(sum.implicit_half_velocity / steps);
       p2.push_back(sum.advance_positions / steps);
       p3.push_back(sum.process_collisions / steps);
@@ -103,10 +107,11 @@ int main(int argc, char** argv) {
     const Vectors3 coarse = run_to(dt), fine = run_to(dt / 4);
     const double error = (coarse - fine).colwise().norm().maxCoeff();
     const double ms_step = median(total);
-    std::printf("%5d %7lld %9.4f %10.3f %9.3f %8.3f %8.3f %8.3f %8.3f %8.1f %9.0f %12.2e\n", n, static_cast<long long>(nodes),
-                dt * 1e3, ms_step, median(p1), median(p2), median(p3), median(p4), median(p5), median(iterations),
-                ms_step / dt, error);
+    std::printf("%5d %7lld %9.4f %10.3f %9.3f %8.3f %8.3f %8.3f %8.3f %8.1f %9.0f %12.2e\n", n,
+                static_cast<long long>(nodes), dt * 1e3, ms_step, median(p1), median(p2), median(p3), median(p4),
+                median(p5), median(iterations), ms_step / dt, error);
   }
-  std::printf("ms/step: median over %d runs of %d steps; ms/sim-s: wall time per simulated second at that step.\n", runs, steps);
+  std::printf("ms/step: median over %d runs of %d steps; ms/sim-s: wall time per simulated second at that step.\n",
+              runs, steps);
   return 0;
 }

@@ -39,7 +39,8 @@ struct Files {
     overlays.parents = o.parents;
     // Frames go to --render's directory, or to a temporary one that only --video needs.
     temporary_frames = o.render.empty() && !o.video.empty();
-    if (temporary_frames) frames_dir = std::filesystem::temp_directory_path() / ("sinew-demo-frames-" + std::to_string(::getpid()));
+    if (temporary_frames)
+      frames_dir = std::filesystem::temp_directory_path() / ("sinew-demo-frames-" + std::to_string(::getpid()));
   }
   ~Files() {  // the temporary folder goes however the run ends
     std::error_code ignored;
@@ -88,8 +89,8 @@ struct Files {
 
 int main(int argc, char** argv) {
   const demos::Program program{.name = "sinew-demo",
-                               .flags = demos::kFrames | demos::kDt | demos::kSubsteps | demos::kGrid | demos::kFiles | demos::kSize |
-                                        demos::kOverlays,
+                               .flags = demos::kFrames | demos::kDt | demos::kSubsteps | demos::kGrid | demos::kFiles |
+                                        demos::kSize | demos::kOverlays,
                                .kinds = {scenes::SceneKind::bullet, scenes::SceneKind::core, scenes::SceneKind::bench}};
   const demos::Options options = demos::parse_command_line(program, argc, argv);
   Files files(options);

@@ -11,9 +11,9 @@
 #include "runner.hpp"
 
 #include <GLFW/glfw3.h>
-#include <imgui.h>
 #include <backends/imgui_impl_glfw.h>
 #include <backends/imgui_impl_opengl2.h>
+#include <imgui.h>
 
 #include <chrono>
 #include <cstdio>
@@ -49,12 +49,13 @@ struct Session {
 }  // namespace
 
 int main(int argc, char** argv) {
-  const demos::Program program{.name = "sinew-view",
-                               .flags = demos::kFrames | demos::kDt | demos::kSubsteps | demos::kSize | demos::kScreenshot | demos::kOverlays,
-                               .kinds = {scenes::SceneKind::bullet},
-                               .default_frames = 0,
-                               .default_width = 1280,
-                               .default_height = 720};
+  const demos::Program program{
+      .name = "sinew-view",
+      .flags = demos::kFrames | demos::kDt | demos::kSubsteps | demos::kSize | demos::kScreenshot | demos::kOverlays,
+      .kinds = {scenes::SceneKind::bullet},
+      .default_frames = 0,
+      .default_width = 1280,
+      .default_height = 720};
   const demos::Options options = demos::parse_command_line(program, argc, argv);
   const std::string& scene_name = options.scene;
   const std::string& screenshot = options.screenshot;
@@ -85,7 +86,8 @@ int main(int argc, char** argv) {
     overlays.hard_bound = options.hard_bound;
     overlays.soft_bound = options.soft_bound;
     overlays.parents = options.parents;
-    render::Camera camera = render::framing_camera(render::picture_of(*session->scene, overlays), double(width) / height);
+    render::Camera camera =
+        render::framing_camera(render::picture_of(*session->scene, overlays), double(width) / height);
     bool paused = false, step_once = false, follow = true;
     const double frame_dt = timing.frame_dt;
     int frame = 0;
@@ -112,7 +114,8 @@ int main(int argc, char** argv) {
       const double mx = io.MousePos.x * scale, my = io.MousePos.y * scale;
       if (!io.WantCaptureMouse) {
         if (io.MouseClicked[0] && session->spring >= 0) {
-          session->grabbed = render::pick_particle(s, camera, mx, my, 15.0 * scale, fb_width, fb_height, &session->grab_depth);
+          session->grabbed =
+              render::pick_particle(s, camera, mx, my, 15.0 * scale, fb_width, fb_height, &session->grab_depth);
           if (session->grabbed >= 0) {
             s.particles().x.col(session->cursor) = s.particles().x.col(session->grabbed);
             s.particles().v.col(session->cursor).setZero();
@@ -165,18 +168,22 @@ int main(int argc, char** argv) {
       const StepStats& st = session->scene->coupling().last_stats();
       ImGui::Separator();
       ImGui::Text("frame: %.2f ms (%d ticks), last tick %.3f ms", frame_ms, substeps, st.ms.total);
-      ImGui::Text("  step 1 %.3f  2 %.3f  3 %.3f  4 %.3f  5 %.3f ms", st.ms.implicit_half_velocity, st.ms.advance_positions,
-                  st.ms.process_collisions, st.ms.backward_euler_velocity, st.ms.extrapolate_velocity);
+      ImGui::Text("  step 1 %.3f  2 %.3f  3 %.3f  4 %.3f  5 %.3f ms", st.ms.implicit_half_velocity,
+                  st.ms.advance_positions, st.ms.process_collisions, st.ms.backward_euler_velocity,
+                  st.ms.extrapolate_velocity);
       ImGui::Text("  forces %.3f ms, CG %.3f ms", st.ms.forces, st.ms.cg);
-      ImGui::Text("CG iterations: %d + %d, residual %.1e%s", st.cg_iterations_step1, st.cg_iterations_step4, st.cg_residual,
-                  st.cg_converged ? "" : " (not converged)");
+      ImGui::Text("CG iterations: %d + %d, residual %.1e%s", st.cg_iterations_step1, st.cg_iterations_step4,
+                  st.cg_residual, st.cg_converged ? "" : " (not converged)");
       ImGui::Text("hard-binding drift: %.2e m", session->scene->hard_binding_drift());
       double stretch = 0.0;  // the scene's springs, not the mouse spring
       for (Index k = 0; k < s.binding_springs().size(); ++k)
         if (k != session->spring && s.binding_springs().active(k))
-          stretch = std::max(stretch, (s.particles().x.col(s.binding_springs().a(k)) - s.particles().x.col(s.binding_springs().b(k))).norm());
+          stretch = std::max(
+              stretch,
+              (s.particles().x.col(s.binding_springs().a(k)) - s.particles().x.col(s.binding_springs().b(k))).norm());
       ImGui::Text("binding-spring stretch: %.2e m", stretch);
-      ImGui::Text(session->grabbed >= 0 ? "holding particle %lld" : "left-drag the cloth to grab it", static_cast<long long>(session->grabbed));
+      ImGui::Text(session->grabbed >= 0 ? "holding particle %lld" : "left-drag the cloth to grab it",
+                  static_cast<long long>(session->grabbed));
       ImGui::End();
 
       if (reset) {
@@ -200,8 +207,8 @@ int main(int argc, char** argv) {
       if (!screenshot.empty() && frame >= frames) {
         glFinish();
         render::write_png(screenshot, fb_width, fb_height, render::read_pixels(fb_width, fb_height));
-        std::printf("{\"scene\": \"%s\", \"frames\": %d, \"screenshot\": \"%s\", \"width\": %d, \"height\": %d}\n", scene_name.c_str(), frame,
-                    screenshot.c_str(), fb_width, fb_height);
+        std::printf("{\"scene\": \"%s\", \"frames\": %d, \"screenshot\": \"%s\", \"width\": %d, \"height\": %d}\n",
+                    scene_name.c_str(), frame, screenshot.c_str(), fb_width, fb_height);
         break;
       }
       glfwSwapBuffers(window);

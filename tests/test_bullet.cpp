@@ -141,7 +141,7 @@ TEST(BulletCoupling, ClothOnFastSpinningBodyStaysAttached) {
   System& s = coupling.system();
   scenes::ClothGridSettings c = small_cloth(Vec3(0.0, 0.05, -0.25));
   c.across = Vec3::UnitZ();
-  c.down = Vec3::UnitX();  // a flag in the x-z plane, its inner edge along the hub
+  c.down = Vec3::UnitX();        // a flag in the x-z plane, its inner edge along the hub
   c.stretch_stiffness = 5000.0;  // stiff enough that the centrifugal load (~25 N at the root) stretches it little
   const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
   for (int i = 0; i < 6; i += 2) coupling.bind_here(cloth.node(i, 0), hub);
@@ -374,7 +374,8 @@ TEST_P(ClothOnShape, RestsOnItWithoutPenetrating) {
       for (Index i = 0; i < s.particles().size(); ++i) {
         double phi;
         Vec3 n;
-        if (bullet::signed_distance(shape.get(), at, s.particles().x.col(i), 1.0, phi, n)) lowest = std::min(lowest, phi);
+        if (bullet::signed_distance(shape.get(), at, s.particles().x.col(i), 1.0, phi, n))
+          lowest = std::min(lowest, phi);
       }
     }
     EXPECT_GE(lowest, -1e-9) << GetParam();
@@ -473,7 +474,8 @@ TEST(BulletCoupling, AStiffSpringOnAFreeFallingBodyFallsWithIt) {
 // the ring stays exactly on the rod and the spring keeps its end where the step left it. An unaware step
 // let the ring fall freely for a tick and Bullet then put it back on the rod, millimetres away from the
 // node, which a stiff spring turns into an energy blow-up.
-void run_node_on_a_slider_ring(double node_mass, double k, double& stretch, double& off_rod, double& along_rod, double global_cfm = 0.0) {
+void run_node_on_a_slider_ring(double node_mass, double k, double& stretch, double& off_rod, double& along_rod,
+                               double global_cfm = 0.0) {
   BulletWorld bw(btVector3(0, -9.81, 0));
   bw.world().getSolverInfo().m_globalCfm = btScalar(global_cfm);
   btTransform at = btTransform::getIdentity();
@@ -573,7 +575,8 @@ TEST(BulletCoupling, CollisionFiltersFollowBulletsGroupsAndMasks) {
     const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
     if (filtered)
       for (Index node : cloth.nodes)
-        s.set_collision_filter(node, btBroadphaseProxy::DefaultFilter, btBroadphaseProxy::AllFilter ^ btBroadphaseProxy::StaticFilter);
+        s.set_collision_filter(node, btBroadphaseProxy::DefaultFilter,
+                               btBroadphaseProxy::AllFilter ^ btBroadphaseProxy::StaticFilter);
     for (int frame = 0; frame < 60; ++frame) bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
     const double lowest = s.particles().x.row(1).minCoeff();
     if (filtered) {

@@ -104,7 +104,8 @@ TEST(CollisionSource, WeightedStencilsHoldTheCentroidsNotTheNodes) {
     std::set<Index> seen;
     for (std::size_t t : floor.active) {
       const auto& tri = s.collision_geometry().triangles[t];
-      EXPECT_NEAR((v_half(1, tri[0]) + v_half(1, tri[1]) + v_half(1, tri[2])) / 3.0, 0.0, 1e-10) << "step " << k << ", triangle " << t;
+      EXPECT_NEAR((v_half(1, tri[0]) + v_half(1, tri[1]) + v_half(1, tri[2])) / 3.0, 0.0, 1e-10)
+          << "step " << k << ", triangle " << t;
       for (Index i : tri) shared += seen.insert(i).second ? 0 : 1;
       ++held;
     }
@@ -129,7 +130,8 @@ TEST(CollisionSource, SourcesRunInOrderAndBadConstraintsNameTheirSource) {
     System t;
     t.add_particle(Vec3::Zero(), Vec3::Zero(), 1.0);
     t.add_kinematic_particle(Vec3::UnitX());
-    t.add_collision_source(make_collision_source("bad source", [c](CollisionContext& context) { context.add_constraint(c); }));
+    t.add_collision_source(
+        make_collision_source("bad source", [c](CollisionContext& context) { context.add_constraint(c); }));
     try {
       t.step(0.01);
       FAIL() << "expected an error: " << needle;

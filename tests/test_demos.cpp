@@ -74,9 +74,9 @@ TEST(NetDemo, HoldsTheBall) {
     lowest = std::min(lowest, position(ball).y());
     stretch = std::max(stretch, scene->system().binding_springs().max_stretch(scene->system().particles().x));
   }
-  EXPECT_GT(lowest, 0.3);                 // the net (at y = 1) sags under the ball; it does not let it through
-  EXPECT_LT(position(ball).y(), 1.0);     // after 5 s the ball lies in the net, below its rim
-  EXPECT_LT(stretch, 0.05);               // the point joints hold
+  EXPECT_GT(lowest, 0.3);              // the net (at y = 1) sags under the ball; it does not let it through
+  EXPECT_LT(position(ball).y(), 1.0);  // after 5 s the ball lies in the net, below its rim
+  EXPECT_LT(stretch, 0.05);            // the point joints hold
   EXPECT_LT(scene->total_energy(), start);
 }
 
@@ -128,7 +128,8 @@ namespace {
 // come to rest on it (volume preserved by the corotated FEM, nothing below the ground).
 TEST(MeshScenes, ClothFromObjAndVolumeFromTetsRestOnTheGround) {
   scenes::BulletWorld world(btVector3(0, -9.81, 0));
-  world.add_body(world.keep(std::make_unique<btStaticPlaneShape>(btVector3(0, 1, 0), 0)), 0.0, btTransform::getIdentity());
+  world.add_body(world.keep(std::make_unique<btStaticPlaneShape>(btVector3(0, 1, 0), 0)), 0.0,
+                 btTransform::getIdentity());
   bullet::Coupling coupling(&world.world());
   System& s = coupling.system();
   mesh::TriangleMesh disc = mesh::load_triangle_mesh(SINEW_ASSETS_DIR "/disc.obj");
@@ -144,7 +145,9 @@ TEST(MeshScenes, ClothFromObjAndVolumeFromTetsRestOnTheGround) {
   auto volume = [&] {
     double v = 0;
     for (const auto& t : cube.tets) {
-      const auto x = [&](int k) { return Vec3(s.particles().x.col(cube_particles[static_cast<std::size_t>(t[static_cast<std::size_t>(k)])])); };
+      const auto x = [&](int k) {
+        return Vec3(s.particles().x.col(cube_particles[static_cast<std::size_t>(t[static_cast<std::size_t>(k)])]));
+      };
       v += (x(1) - x(0)).cross(x(2) - x(0)).dot(x(3) - x(0)) / 6;
     }
     return v;
@@ -155,8 +158,8 @@ TEST(MeshScenes, ClothFromObjAndVolumeFromTetsRestOnTheGround) {
   double cube_bottom = kInfinity, cloth_top = -kInfinity;
   for (Index p : cube_particles) cube_bottom = std::min(cube_bottom, s.particles().x(1, p));
   for (Index p : cloth_particles) cloth_top = std::max(cloth_top, s.particles().x(1, p));
-  EXPECT_NEAR(cube_bottom, 0.01, 2e-3);   // resting on the ground at the collision thickness
-  EXPECT_LT(cloth_top, 0.05);             // the disc lies flat
+  EXPECT_NEAR(cube_bottom, 0.01, 2e-3);  // resting on the ground at the collision thickness
+  EXPECT_LT(cloth_top, 0.05);            // the disc lies flat
 }
 
 }  // namespace
@@ -178,7 +181,8 @@ TEST(HelloDemo, FrameExportHoldsTheClothAndTheBodies) {
   EXPECT_EQ(surfaces[1].triangles.size(), 2u);
   // The sphere's hull: every vertex within the margin of the 0.3 m radius around the body.
   const Vec3 centre = position(scene->bullet().bodies()[1]);
-  for (Index v = 0; v < surfaces[2].vertices.cols(); ++v) EXPECT_NEAR((surfaces[2].vertices.col(v) - centre).norm(), 0.3, 0.05);
+  for (Index v = 0; v < surfaces[2].vertices.cols(); ++v)
+    EXPECT_NEAR((surfaces[2].vertices.col(v) - centre).norm(), 0.3, 0.05);
   std::vector<mesh::TriangleMesh> meshes;
   std::size_t triangles = 0;
   for (const auto& s : surfaces) {
@@ -211,7 +215,8 @@ TEST(MeshScenes, RigidBodiesFromMeshFiles) {
   puck_vertices.rightCols(disc.vertices.cols()) = disc.vertices;
   puck_vertices.rightCols(disc.vertices.cols()).row(1).array() += 0.1;  // a 0.8 m puck, 0.1 m high
   bullet::MeshShape puck = bullet::convex_hull_shape(puck_vertices);
-  btRigidBody* body = world.add_body(puck.shape.get(), 2.0, btTransform(btQuaternion::getIdentity(), btVector3(0, 0.3, 0)));
+  btRigidBody* body =
+      world.add_body(puck.shape.get(), 2.0, btTransform(btQuaternion::getIdentity(), btVector3(0, 0.3, 0)));
   body->setActivationState(DISABLE_DEACTIVATION);
   bullet::Coupling coupling(&world.world());
   scenes::ClothGridSettings c;
@@ -247,8 +252,10 @@ TEST(SceneLibrary, ListsEverySceneOnceAndNamesWhatItLacks) {
   for (const scenes::SceneInfo& s : scenes::registered_scenes()) EXPECT_TRUE(names.insert(s.name).second) << s.name;
   // Present, not "exactly these": a new scene must not have to edit this test.
   const std::vector<std::string> bullet = scenes::bullet_scene_names();
-  for (const char* name : {"curtain", "net", "plates", "hello"}) EXPECT_EQ(std::count(bullet.begin(), bullet.end(), name), 1) << name;
-  for (const char* name : {"hanging-cloth", "bench-curtain", "stability/spin_100", "toy-drop"}) EXPECT_EQ(names.count(name), 1u) << name;
+  for (const char* name : {"curtain", "net", "plates", "hello"})
+    EXPECT_EQ(std::count(bullet.begin(), bullet.end(), name), 1) << name;
+  for (const char* name : {"hanging-cloth", "bench-curtain", "stability/spin_100", "toy-drop"})
+    EXPECT_EQ(names.count(name), 1u) << name;
   for (const scenes::SceneInfo& s : scenes::registered_scenes())
     if (s.kind == scenes::SceneKind::bullet) EXPECT_NO_THROW(make_bullet_scene(s.name)) << s.name;
   auto message = [](auto&& f) {
@@ -262,10 +269,14 @@ TEST(SceneLibrary, ListsEverySceneOnceAndNamesWhatItLacks) {
   EXPECT_NE(message([] { scenes::make_scene("drapes"); }).find("unknown scene 'drapes'"), std::string::npos);
   EXPECT_NE(message([] { make_bullet_scene("hanging-cloth"); }).find("not a Bullet scene"), std::string::npos);
   EXPECT_NE(message([] { scenes::make_scene("curtain", {.nx = 10}); }).find("--nx"), std::string::npos);
-  EXPECT_NE(message([] { scenes::register_scene({.name = "net", .description = "again", .make = scenes::construct<scenes::CoreScene>}); })
-                .find("registered twice"),
-            std::string::npos);
-  EXPECT_NE(message([] { scenes::register_scene({.name = "two words", .description = "x", .make = {}}); }).find("one word"), std::string::npos);
+  EXPECT_NE(
+      message([] {
+        scenes::register_scene({.name = "net", .description = "again", .make = scenes::construct<scenes::CoreScene>});
+      }).find("registered twice"),
+      std::string::npos);
+  EXPECT_NE(
+      message([] { scenes::register_scene({.name = "two words", .description = "x", .make = {}}); }).find("one word"),
+      std::string::npos);
 }
 
 // The "add a scene" recipe followed once: tests/toy_scene.cpp is one file with one registration line
@@ -274,7 +285,8 @@ TEST(SceneLibrary, ListsEverySceneOnceAndNamesWhatItLacks) {
 // fallen g t^2 / 2 after t (the step is exact under constant acceleration).
 TEST(SceneLibrary, AToySceneAddedByOneFileRunsThroughTheSharedRunner) {
   EXPECT_EQ(scenes::find_scene("toy-drop").kind, scenes::SceneKind::core);
-  const demos::Program program{.name = "toy-demo", .flags = demos::kFrames | demos::kDt, .kinds = {scenes::SceneKind::core}};
+  const demos::Program program{
+      .name = "toy-demo", .flags = demos::kFrames | demos::kDt, .kinds = {scenes::SceneKind::core}};
   const char* argv[] = {"toy-demo", "toy-drop", "--frames", "30", "--fps", "60"};
   const demos::Options options = demos::parse_command_line(program, 6, const_cast<char**>(argv));
   EXPECT_EQ(options.frames, 30);

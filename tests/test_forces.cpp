@@ -338,7 +338,6 @@ void expect_definite_part_symmetric_nsd(const Force& force, const Vectors3& like
   }
 }
 
-
 // ---------------------------------------------------------------------------------------------
 // The checks every force passes, one parameterised suite over force factories. A new force is
 // tested by writing a factory (a small perturbed configuration, and a large one for the threaded
@@ -366,8 +365,12 @@ VectorXd masses(Index n, double m, std::initializer_list<Index> pinned) {
 
 ForceCase edge_springs_case(bool small, std::mt19937& rng) {
   const Cloth cloth(small ? 4 : 40);
-  return {std::make_unique<EdgeSprings>(make_springs(cloth)), cloth.rest, cloth.deformed(rng),
-          masses(cloth.rest.cols(), 0.01, {0}), kSpacing, 200.0 * kSpacing};
+  return {std::make_unique<EdgeSprings>(make_springs(cloth)),
+          cloth.rest,
+          cloth.deformed(rng),
+          masses(cloth.rest.cols(), 0.01, {0}),
+          kSpacing,
+          200.0 * kSpacing};
 }
 
 ForceCase triangle_membrane_case(bool small, std::mt19937& rng) {
@@ -384,7 +387,7 @@ ForceCase triangle_membrane_case(bool small, std::mt19937& rng) {
 ForceCase dihedral_bending_case(bool small, std::mt19937& rng) {
   const Cloth cloth(small ? 4 : 40);
   return {std::make_unique<DihedralBending>(make_implicit_bending(cloth)), cloth.rest, folded(cloth, rng),
-          masses(cloth.rest.cols(), 0.2 * kSpacing * kSpacing, {0}), kSpacing, 0.02 / kSpacing};
+          masses(cloth.rest.cols(), 0.2 * kSpacing * kSpacing, {0}),       kSpacing,   0.02 / kSpacing};
 }
 
 ForceCase corotated_tets_case(bool small, std::mt19937& rng) {
@@ -411,8 +414,13 @@ ForceCase centroid_springs_case(bool small, std::mt19937& rng) {
   Mat3 a;
   a << 1.2, 0.2, 0.0, -0.1, 0.8, 0.1, 0.1, 0.3, 1.1;
   const Vectors3 x = a * rest + random_like(rest, 0.1, rng);
-  return {std::make_unique<CentroidSprings>(stencils, rest, CentroidSpringsSettings{.stiffness = 200.0, .damping = 0.7}), rest, x,
-          masses(n, 0.01, {0}), 0.5, 200.0};
+  return {
+      std::make_unique<CentroidSprings>(stencils, rest, CentroidSpringsSettings{.stiffness = 200.0, .damping = 0.7}),
+      rest,
+      x,
+      masses(n, 0.01, {0}),
+      0.5,
+      200.0};
 }
 
 struct NamedFactory {
@@ -423,10 +431,8 @@ struct NamedFactory {
 void PrintTo(const NamedFactory& factory, std::ostream* os) { *os << factory.name; }
 
 const NamedFactory kForceFactories[] = {
-    {"EdgeSprings", edge_springs_case},
-    {"TriangleMembrane", triangle_membrane_case},
-    {"DihedralBending", dihedral_bending_case},
-    {"CorotatedTets", corotated_tets_case},
+    {"EdgeSprings", edge_springs_case},         {"TriangleMembrane", triangle_membrane_case},
+    {"DihedralBending", dihedral_bending_case}, {"CorotatedTets", corotated_tets_case},
     {"CentroidSprings", centroid_springs_case},
 };
 
@@ -509,14 +515,16 @@ TEST_P(EveryForce, ImplicitBlocksAreTheProbedProducts) {
     VectorXd diag = VectorXd::Zero(n);
     offered->add_diagonal(b, diag);
     for (Index i = 0; i < n; ++i)
-      EXPECT_NEAR(diag[i], -dense.block(3 * i, 3 * i, 3, 3).trace() / 3.0, 1e-12 * scale) << "b " << b << ", particle " << i;
+      EXPECT_NEAR(diag[i], -dense.block(3 * i, 3 * i, 3, 3).trace() / 3.0, 1e-12 * scale)
+          << "b " << b << ", particle " << i;
     ImplicitBlocks::Blocks blocks = ImplicitBlocks::Blocks::Zero(9, n);
     if (!offered->add_diagonal_blocks(b, blocks)) {
       EXPECT_TRUE(blocks.isZero()) << "declined, yet added";
       continue;
     }
     for (Index i = 0; i < n; ++i)
-      EXPECT_LT((Eigen::Map<const Mat3>(blocks.col(i).data()) + dense.block(3 * i, 3 * i, 3, 3)).norm(), 1e-12 * scale) << "particle " << i;
+      EXPECT_LT((Eigen::Map<const Mat3>(blocks.col(i).data()) + dense.block(3 * i, 3 * i, 3, 3)).norm(), 1e-12 * scale)
+          << "particle " << i;
     struct Assembled final : PairBlockSink {
       MatrixXd m;
       std::vector<Mat3> sequence;
@@ -534,7 +542,8 @@ TEST_P(EveryForce, ImplicitBlocksAreTheProbedProducts) {
     if (count == 0) continue;
     ASSERT_EQ(count, static_cast<Index>(assembled.sequence.size()));
     for (Index k = 0; k < count; ++k)
-      EXPECT_TRUE(offered->pair_block(k, b) == assembled.sequence[static_cast<std::size_t>(k)]) << "b " << b << ", block " << k;
+      EXPECT_TRUE(offered->pair_block(k, b) == assembled.sequence[static_cast<std::size_t>(k)])
+          << "b " << b << ", block " << k;
   }
 }
 
@@ -588,7 +597,9 @@ TEST_P(EveryForce, SameBitsOnOneAndTwoThreads) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Forces, EveryForce, ::testing::ValuesIn(kForceFactories),
-                         [](const ::testing::TestParamInfo<NamedFactory>& param) { return std::string(param.param.name); });
+                         [](const ::testing::TestParamInfo<NamedFactory>& param) {
+                           return std::string(param.param.name);
+                         });
 
 // ---------------------------------------------------------------------------------------------
 // EdgeSprings
@@ -673,7 +684,8 @@ TEST(EdgeSprings, ChunkedProductsMatchPerEdgeSumsOnAnyThreadCount) {
       rest.col(a) = Vec3(0.05 * i, -0.05 * j, 0.0);
       if (i + 1 < nx) edges.push_back({a, a + 1});
       if (j + 1 < nx) edges.push_back({a, a + nx});
-      if (i + 1 < nx && j + 1 < nx) edges.push_back((i + j) % 2 ? EdgeSprings::Edge{a, a + nx + 1} : EdgeSprings::Edge{a + 1, a + nx});
+      if (i + 1 < nx && j + 1 < nx)
+        edges.push_back((i + j) % 2 ? EdgeSprings::Edge{a, a + nx + 1} : EdgeSprings::Edge{a + 1, a + nx});
     }
   ASSERT_GE(static_cast<Index>(edges.size()), parallel::kMinChunkedElements);
   EdgeSprings springs(edges, rest, {.stiffness = 200.0, .damping = 0.05});
@@ -762,7 +774,8 @@ TEST(ChunkedScatter, VariableStencilsGiveEachNodeItsTermsOnAnyThreadCount) {
     for (Index i = 0; i + 1 < side; ++i) {
       const Index a = j * side + i;
       std::vector<Index> element{a, a + 1};
-      for (Index extra = 0; extra < static_cast<Index>(grid.size() % 4) && a + side + extra < nodes; ++extra) element.push_back(a + side + extra);
+      for (Index extra = 0; extra < static_cast<Index>(grid.size() % 4) && a + side + extra < nodes; ++extra)
+        element.push_back(a + side + extra);
       grid.push_back(element);
     }
   std::vector<std::vector<Index>> shuffled = grid;
@@ -793,7 +806,8 @@ TEST(ChunkedScatter, VariableStencilsGiveEachNodeItsTermsOnAnyThreadCount) {
     Vectors3 expected = Vectors3::Constant(3, nodes, 0.5);
     for (std::size_t e = 0; e < elements->size(); ++e)
       for (std::size_t a = 0; a < (*elements)[e].size(); ++a)
-        for (Index c = 0; c < 3; ++c) expected(c, (*elements)[e][a]) += term(static_cast<Index>(e), static_cast<Index>(a), c);
+        for (Index c = 0; c < 3; ++c)
+          expected(c, (*elements)[e][a]) += term(static_cast<Index>(e), static_cast<Index>(a), c);
     auto run = [&](int threads) {
       set_thread_count(threads);
       Vectors3 f = Vectors3::Constant(3, nodes, 0.5);
@@ -918,7 +932,8 @@ TEST(DihedralBending, ImplicitProductsAreDampingPlusGaussNewtonDifferential) {
       e(c, i) = 1.0;
       probed.col(c) = -implicit(e, 0.25).col(i);
     }
-    EXPECT_LT((Eigen::Map<const Mat3>(blocks.col(i).data()) - probed).norm(), 1e-12 * (1.0 + probed.norm())) << "particle " << i;
+    EXPECT_LT((Eigen::Map<const Mat3>(blocks.col(i).data()) - probed).norm(), 1e-12 * (1.0 + probed.norm()))
+        << "particle " << i;
   }
 }
 
@@ -1165,15 +1180,30 @@ Vectors3 five_points(const Vec3& x4) {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 const BadInputCase kBadInputs[] = {
-    {"springs_nan_stiffness", [] { EdgeSprings({{0, 1}}, three_points(), {.stiffness = kNaN}); },
+    {"springs_nan_stiffness",
+     [] {
+       EdgeSprings({{0, 1}}, three_points(), {.stiffness = kNaN});
+     },
      "edge springs: stiffness is nan"},
-    {"springs_negative_stiffness", [] { EdgeSprings({{0, 1}}, three_points(), {.stiffness = -1.0}); },
+    {"springs_negative_stiffness",
+     [] {
+       EdgeSprings({{0, 1}}, three_points(), {.stiffness = -1.0});
+     },
      "edge springs: stiffness is negative"},
-    {"springs_inf_damping", [] { EdgeSprings({{0, 1}}, three_points(), {.damping = kInfinity}); },
+    {"springs_inf_damping",
+     [] {
+       EdgeSprings({{0, 1}}, three_points(), {.damping = kInfinity});
+     },
      "edge springs: damping is inf"},
-    {"springs_index_out_of_range", [] { EdgeSprings({{0, 1}, {1, 7}}, three_points()); },
+    {"springs_index_out_of_range",
+     [] {
+       EdgeSprings({{0, 1}, {1, 7}}, three_points());
+     },
      "edge 1: vertex index 7 out of range [0, 3)"},
-    {"springs_repeated_index", [] { EdgeSprings({{0, 1}, {2, 2}}, three_points()); },
+    {"springs_repeated_index",
+     [] {
+       EdgeSprings({{0, 1}, {2, 2}}, three_points());
+     },
      "edge 1: vertex index 2 is repeated"},
     {"springs_zero_length",
      [] {
@@ -1189,23 +1219,45 @@ const BadInputCase kBadInputs[] = {
        EdgeSprings({{0, 1}, {1, 2}}, x);
      },
      "edge 1: rest position of vertex 2 is not finite"},
-    {"springs_validate_out_of_range", [] { EdgeSprings({{0, 1}, {1, 2}}, three_points()).validate(2); },
+    {"springs_validate_out_of_range",
+     [] {
+       EdgeSprings({{0, 1}, {1, 2}}, three_points()).validate(2);
+     },
      "edge 1: vertex index 2 out of range [0, 2)"},
     {"springs_stable_dt_short_masses",
-     [] { (void)EdgeSprings({{0, 1}, {1, 2}}, three_points()).stable_dt(VectorXd::Ones(2)); },
+     [] {
+       (void)EdgeSprings({{0, 1}, {1, 2}}, three_points()).stable_dt(VectorXd::Ones(2));
+     },
      "edge springs: stable_dt got 2 masses"},
-    {"membrane_nan_mu", [] { TriangleMembrane({{0, 1, 2}}, three_points(), {.mu = kNaN}); },
+    {"membrane_nan_mu",
+     [] {
+       TriangleMembrane({{0, 1, 2}}, three_points(), {.mu = kNaN});
+     },
      "triangle membrane: mu is nan"},
-    {"membrane_negative_beta", [] { TriangleMembrane({{0, 1, 2}}, three_points(), {.beta = -0.1}); },
+    {"membrane_negative_beta",
+     [] {
+       TriangleMembrane({{0, 1, 2}}, three_points(), {.beta = -0.1});
+     },
      "triangle membrane: beta is negative"},
     {"membrane_lambda_below_minus_mu",
-     [] { TriangleMembrane({{0, 1, 2}}, three_points(), {.mu = 1.0, .lambda = -2.0}); },
+     [] {
+       TriangleMembrane({{0, 1, 2}}, three_points(), {.mu = 1.0, .lambda = -2.0});
+     },
      "triangle membrane: lambda -2"},
-    {"membrane_index_out_of_range", [] { TriangleMembrane({{0, 1, 900}}, three_points()); },
+    {"membrane_index_out_of_range",
+     [] {
+       TriangleMembrane({{0, 1, 900}}, three_points());
+     },
      "triangle 0: vertex index 900 out of range [0, 3)"},
-    {"membrane_negative_index", [] { TriangleMembrane({{0, 1, 2}, {-1, 1, 2}}, three_points()); },
+    {"membrane_negative_index",
+     [] {
+       TriangleMembrane({{0, 1, 2}, {-1, 1, 2}}, three_points());
+     },
      "triangle 1: vertex index -1 out of range"},
-    {"membrane_repeated_index", [] { TriangleMembrane({{0, 1, 2}, {2, 1, 2}}, three_points()); },
+    {"membrane_repeated_index",
+     [] {
+       TriangleMembrane({{0, 1, 2}, {2, 1, 2}}, three_points());
+     },
      "triangle 1: vertex index 2 is repeated"},
     {"membrane_zero_area",
      [] {
@@ -1215,13 +1267,25 @@ const BadInputCase kBadInputs[] = {
        TriangleMembrane({{0, 1, 2}, {0, 1, 3}}, x);
      },
      "triangle 1 is degenerate (area 0)"},
-    {"bending_nan_stiffness", [] { DihedralBending({{0, 1, 2, 3}}, SingleHinge().rest, {.stiffness = kNaN}); },
+    {"bending_nan_stiffness",
+     [] {
+       DihedralBending({{0, 1, 2, 3}}, SingleHinge().rest, {.stiffness = kNaN});
+     },
      "dihedral bending: stiffness is nan"},
-    {"bending_negative_damping", [] { DihedralBending({{0, 1, 2, 3}}, SingleHinge().rest, {.damping = -1.0}); },
+    {"bending_negative_damping",
+     [] {
+       DihedralBending({{0, 1, 2, 3}}, SingleHinge().rest, {.damping = -1.0});
+     },
      "dihedral bending: damping is negative"},
-    {"bending_repeated_index", [] { DihedralBending({{0, 1, 2, 3}, {0, 1, 2, 2}}, SingleHinge().rest); },
+    {"bending_repeated_index",
+     [] {
+       DihedralBending({{0, 1, 2, 3}, {0, 1, 2, 2}}, SingleHinge().rest);
+     },
      "hinge 1: vertex index 2 is repeated"},
-    {"bending_index_out_of_range", [] { DihedralBending({{0, 1, 2, 4}}, SingleHinge().rest); },
+    {"bending_index_out_of_range",
+     [] {
+       DihedralBending({{0, 1, 2, 4}}, SingleHinge().rest);
+     },
      "hinge 0: vertex index 4 out of range [0, 4)"},
     {"bending_degenerate_wing",
      [] {
@@ -1238,31 +1302,59 @@ const BadInputCase kBadInputs[] = {
      },
      "hinge 0: shared edge (0, 1) has zero rest length"},
     {"bending_non_manifold_edge",
-     [] { (void)DihedralBending::hinges_from_triangles({{0, 1, 2}, {1, 0, 3}, {0, 1, 4}}); },
+     [] {
+       (void)DihedralBending::hinges_from_triangles({{0, 1, 2}, {1, 0, 3}, {0, 1, 4}});
+     },
      "edge (0, 1) is shared by 3 triangles"},
     {"bending_triangle_with_repeated_index",
-     [] { (void)DihedralBending::hinges_from_triangles({{0, 1, 2}, {1, 1, 3}}); },
+     [] {
+       (void)DihedralBending::hinges_from_triangles({{0, 1, 2}, {1, 1, 3}});
+     },
      "triangle 1: vertex index 1 is repeated"},
     {"tets_inverted_rest",
-     [] { CorotatedTets({{0, 1, 2, 3}, {1, 3, 2, 4}}, five_points(Vec3(1.0, 1.0, 1.0))); },
+     [] {
+       CorotatedTets({{0, 1, 2, 3}, {1, 3, 2, 4}}, five_points(Vec3(1.0, 1.0, 1.0)));
+     },
      "tet 1 is inverted (volume -"},
     {"tets_flat_rest",
-     [] { CorotatedTets({{0, 1, 2, 3}, {1, 3, 2, 4}}, five_points(Vec3(0.5, 0.0, 0.5))); },
+     [] {
+       CorotatedTets({{0, 1, 2, 3}, {1, 3, 2, 4}}, five_points(Vec3(0.5, 0.0, 0.5)));
+     },
      "tet 1 is degenerate (volume"},
-    {"tets_index_out_of_range", [] { CorotatedTets({{0, 1, 2, 3}, {1, 3, 2, 5}}, five_points(Vec3::Ones())); },
+    {"tets_index_out_of_range",
+     [] {
+       CorotatedTets({{0, 1, 2, 3}, {1, 3, 2, 5}}, five_points(Vec3::Ones()));
+     },
      "tet 1: vertex index 5 out of range [0, 5)"},
-    {"tets_repeated_index", [] { CorotatedTets({{0, 1, 2, 3}, {1, 3, 3, 4}}, five_points(Vec3::Ones())); },
+    {"tets_repeated_index",
+     [] {
+       CorotatedTets({{0, 1, 2, 3}, {1, 3, 3, 4}}, five_points(Vec3::Ones()));
+     },
      "tet 1: vertex index 3 is repeated"},
-    {"tets_negative_young", [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.young_modulus = -5.0}); },
+    {"tets_negative_young",
+     [] {
+       CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.young_modulus = -5.0});
+     },
      "corotated tets: young_modulus is negative"},
-    {"tets_zero_young", [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.young_modulus = 0.0}); },
+    {"tets_zero_young",
+     [] {
+       CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.young_modulus = 0.0});
+     },
      "corotated tets: young_modulus is 0"},
-    {"tets_nan_poisson", [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.poisson_ratio = kNaN}); },
+    {"tets_nan_poisson",
+     [] {
+       CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.poisson_ratio = kNaN});
+     },
      "corotated tets: poisson_ratio is nan"},
     {"tets_incompressible_poisson",
-     [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.poisson_ratio = 0.5}); },
+     [] {
+       CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.poisson_ratio = 0.5});
+     },
      "corotated tets: poisson_ratio 0.5 is outside (-1, 0.5)"},
-    {"tets_nan_beta", [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.beta = kNaN}); },
+    {"tets_nan_beta",
+     [] {
+       CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.beta = kNaN});
+     },
      "corotated tets: beta is nan"},
 };
 

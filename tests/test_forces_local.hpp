@@ -21,11 +21,13 @@ class AnchorSprings final : public Force, public ImplicitBlocks {
   void update_position_state(const Vectors3&) override {}
   double potential_energy(const Vectors3& x) const override {
     double e = 0;
-    for (std::size_t i = 0; i < m_particles.size(); ++i) e += 0.5 * m_k * (x.col(m_particles[i]) - m_anchors.col(i)).squaredNorm();
+    for (std::size_t i = 0; i < m_particles.size(); ++i)
+      e += 0.5 * m_k * (x.col(m_particles[i]) - m_anchors.col(i)).squaredNorm();
     return e;
   }
   void add_elastic_forces(const Vectors3& x, Vectors3& f) const override {
-    for (std::size_t i = 0; i < m_particles.size(); ++i) f.col(m_particles[i]) -= m_k * (x.col(m_particles[i]) - m_anchors.col(i));
+    for (std::size_t i = 0; i < m_particles.size(); ++i)
+      f.col(m_particles[i]) -= m_k * (x.col(m_particles[i]) - m_anchors.col(i));
   }
   void add_elastic_differentials(const Vectors3& dx, Vectors3& df) const override {
     for (Index p : m_particles) df.col(p) -= m_k * dx.col(p);

@@ -36,7 +36,8 @@ mesh::TriangleMesh grid(int n) {
 double area(const mesh::TriangleMesh& m) {
   double total = 0;
   for (const auto& t : m.triangles)
-    total += 0.5 * (m.vertices.col(t[1]) - m.vertices.col(t[0])).cross(m.vertices.col(t[2]) - m.vertices.col(t[0])).norm();
+    total +=
+        0.5 * (m.vertices.col(t[1]) - m.vertices.col(t[0])).cross(m.vertices.col(t[2]) - m.vertices.col(t[0])).norm();
   return total;
 }
 
@@ -64,8 +65,9 @@ TEST(MeshFiles, BadFilesAreNamed) {
   const std::string points = scratch("points.obj").string();
   std::ofstream(points) << "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
   EXPECT_NE(error_of([&] { mesh::load_triangle_mesh(points); }).find("points.obj'"), std::string::npos);
-  EXPECT_NE(error_of([&] { mesh::save_triangle_meshes(scratch("x.abc").string(), {grid(2)}, {}); }).find("unknown extension"),
-            std::string::npos);
+  EXPECT_NE(
+      error_of([&] { mesh::save_triangle_meshes(scratch("x.abc").string(), {grid(2)}, {}); }).find("unknown extension"),
+      std::string::npos);
 }
 
 // A unit cube as five tets in TetGen's format (1-based), one of them listed inverted.
@@ -102,10 +104,13 @@ TEST(TetMeshFiles, CubeHasUnitVolumeAndAClosedOutwardBoundary) {
 }
 
 TEST(TetMeshFiles, BadFilesAreNamed) {
-  EXPECT_NE(error_of([] { mesh::load_tet_mesh(scratch("nothing").string()); }).find("nothing.node': cannot be opened"), std::string::npos);
-  EXPECT_NE(error_of([] { mesh::load_tet_mesh(write_cube("words", "1 4 0\n1 1 2 x 4\n")); }).find("'x'"), std::string::npos);
-  EXPECT_NE(error_of([] { mesh::load_tet_mesh(write_cube("range", "1 4 0\n1 1 2 3 99\n")); }).find("tet 0 refers to node 99"),
+  EXPECT_NE(error_of([] { mesh::load_tet_mesh(scratch("nothing").string()); }).find("nothing.node': cannot be opened"),
             std::string::npos);
+  EXPECT_NE(error_of([] { mesh::load_tet_mesh(write_cube("words", "1 4 0\n1 1 2 x 4\n")); }).find("'x'"),
+            std::string::npos);
+  EXPECT_NE(
+      error_of([] { mesh::load_tet_mesh(write_cube("range", "1 4 0\n1 1 2 3 99\n")); }).find("tet 0 refers to node 99"),
+      std::string::npos);
   EXPECT_NE(error_of([] { mesh::load_tet_mesh(write_cube("flat", "1 4 0\n1 1 2 3 4\n")); }).find("tet 0 is degenerate"),
             std::string::npos);
 }

@@ -233,7 +233,8 @@ class GridBlocks final : public Force, public ImplicitBlocks {
   const ImplicitBlocks* implicit_blocks() const override { return this; }
   void add_diagonal(double, VectorXd&) const override {}
   bool visit_pair_blocks(double b, PairBlockSink& sink) const override {
-    for (std::size_t e = 0; e < m_op.pairs.size(); ++e) sink.add(m_op.pairs[e][0], m_op.pairs[e][1], b * m_op.blocks[e]);
+    for (std::size_t e = 0; e < m_op.pairs.size(); ++e)
+      sink.add(m_op.pairs[e][0], m_op.pairs[e][1], b * m_op.blocks[e]);
     return true;
   }
   Index pair_block_count() const override { return m_single ? static_cast<Index>(m_op.pairs.size()) : 0; }
@@ -388,7 +389,7 @@ TEST(Multigrid, ImplicitBendingIsStableFarAboveTheExplicitLimit) {
     return gain;
   };
   EXPECT_LE(run(true), 0.03 * 0.25);
-  EXPECT_GT(run(false), 1.0);   // explicit bending at four times its limit blows up
+  EXPECT_GT(run(false), 1.0);  // explicit bending at four times its limit blows up
 }
 
 // Step 1's initial guess (StepSettings::step1_guess). At 1/60 s the cloth's stiff modes, which
@@ -414,8 +415,8 @@ TEST(Multigrid, AdaptiveStepOneGuessIsAsGoodAsTheBetterFixedOne) {
   const int previous = run(Step1Guess::previous_velocity, 40, 1e-2, 40).second;
   const int extrapolated = run(Step1Guess::extrapolated, 40, 1e-2, 40).second;
   EXPECT_GT(extrapolated, 5 * previous / 4) << "the scene no longer tells the guesses apart";
-  EXPECT_LE(adaptive, 11 * std::min(previous, extrapolated) / 10) << "adaptive " << adaptive << ", v^n " << previous
-                                                                   << ", extrapolated " << extrapolated;
+  EXPECT_LE(adaptive, 11 * std::min(previous, extrapolated) / 10)
+      << "adaptive " << adaptive << ", v^n " << previous << ", extrapolated " << extrapolated;
   const auto [a, a_its] = run(Step1Guess::previous_velocity, 20, 1e-10, 10);
   const auto [b, b_its] = run(Step1Guess::extrapolated, 20, 1e-10, 10);
   EXPECT_LT((a.particles().x - b.particles().x).cwiseAbs().maxCoeff(), 1e-9);

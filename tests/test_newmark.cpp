@@ -5,13 +5,13 @@
 #include "test_forces_local.hpp"
 #include "test_util.hpp"
 
-#include <Eigen/Eigenvalues>
 #include <gtest/gtest.h>
+#include <Eigen/Eigenvalues>
 
 #include <cmath>
 #include <memory>
-#include <utility>
 #include <numbers>
+#include <utility>
 
 namespace sinew {
 namespace {
@@ -76,8 +76,8 @@ TEST(Newmark, ImplicitElasticityMatchesItsClosedFormStepAndIsStableAtAnyStep) {
     const Index p = s.add_particle(Vec3(1.1, 0, 0), Vec3(0.3, 0, 0), 1.0);
     Vectors3 rest(3, 2);
     rest << 0, 1, 0, 0, 0, 0;
-    s.add_force(std::make_unique<EdgeSprings>(std::vector<EdgeSprings::Edge>{{anchor, p}}, rest,
-                                              EdgeSpringsSettings{k, 0.0}));
+    s.add_force(
+        std::make_unique<EdgeSprings>(std::vector<EdgeSprings::Edge>{{anchor, p}}, rest, EdgeSpringsSettings{k, 0.0}));
     s.finalize();
     EXPECT_EQ(s.stable_dt(), kInfinity);  // the spring no longer limits the step
     double u = 0.1, v = 0.3;
@@ -214,7 +214,8 @@ TEST(Newmark, NewtonIterationHoldsAFilmFrameStep) {
   run(1, 4, &x1);
   run(2, 4, &x2);
   run(3, 4, &x3);
-  const double first = (x1 - x0).cwiseAbs().maxCoeff(), second = (x2 - x1).cwiseAbs().maxCoeff(), third = (x3 - x2).cwiseAbs().maxCoeff();
+  const double first = (x1 - x0).cwiseAbs().maxCoeff(), second = (x2 - x1).cwiseAbs().maxCoeff(),
+               third = (x3 - x2).cwiseAbs().maxCoeff();
   EXPECT_LT(second, 0.5 * first) << first << " " << second << " " << third;
   EXPECT_LT(third, 0.5 * second) << first << " " << second << " " << third;
 }
@@ -287,7 +288,8 @@ TEST(Newmark, StepOneStartsFromTheLastStepsMotion) {
     const ClothGrid grid = add_cloth_grid(*s, settings);
     for (int j = 0; j < grid.ny; ++j)
       for (int i = 0; i < grid.nx; ++i)
-        s->particles().v.col(grid.node(i, j)) = Vec3(0.0, 0.0, std::sin(std::numbers::pi * i / (grid.nx - 1)) + 0.5 * j / (grid.ny - 1));
+        s->particles().v.col(grid.node(i, j)) =
+            Vec3(0.0, 0.0, std::sin(std::numbers::pi * i / (grid.nx - 1)) + 0.5 * j / (grid.ny - 1));
     s->step_settings().implicit_elasticity = true;
     s->step_settings().cg_tolerance = 1e-6;
     return s;
@@ -353,7 +355,8 @@ TEST(BindingSpring, VeryStiffSpringStaysBoundedAndConverges) {
   // sqrt(det) < 1. Stable for every k, but a stiff mode is damped only by e/s = 2 sqrt(m/k)/h per
   // step, like any trapezoidal scheme: the particle flips across its target while it converges.
   const double c = 2 * std::sqrt(k), s = h * h * k, e = h * c;
-  EXPECT_NEAR(spectral_radius(k, 1.0, dt, BindingSpringStep4::explicit_half_step), std::sqrt((1 + s - e) / (1 + s + e)), 1e-7);
+  EXPECT_NEAR(spectral_radius(k, 1.0, dt, BindingSpringStep4::explicit_half_step), std::sqrt((1 + s - e) / (1 + s + e)),
+              1e-7);
 }
 
 TEST(BindingSpring, UndampedSpringIsNeutralWithHalfStepPosition) {
@@ -384,7 +387,8 @@ TEST(BindingSpring, EvaluatingStep4AtEndOfStepIsUnstable) {
 // 1e7, 3e-5 m at 1e10). The paper's printed step 4 (explicit_half_step) kicks it instead and diverges on
 // this scene from about 1e8 N/m (1466 steps at 1e8, 31 at 1e12); at 1e12 even the default drifts to
 // 0.8 mm in 2000 steps. With the point at the centre of mass there is no arc and no limit.
-void run_spring_on_a_lever(double k, BindingSpringStep4 mode, double& worst_stretch, double& worst_spin, double& speed) {
+void run_spring_on_a_lever(double k, BindingSpringStep4 mode, double& worst_stretch, double& worst_spin,
+                           double& speed) {
   System s;
   s.step_settings().binding_springs_in_step4 = mode;
   RigidBodySettings ring;

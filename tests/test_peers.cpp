@@ -34,7 +34,8 @@ TEST(CurtainBench, BoundNodesOnePerRingAtTheNearestNode) {
     EXPECT_EQ(ring, static_cast<int>(k)) << "each ring has exactly one node";
     nodes.insert(i);
     // The nearest top-row node is within half a spacing of the ring's centre.
-    EXPECT_LE(std::abs(node_rest_position(spec, i, 0).x() - ring_rest_centre(spec, ring).x()), 0.5 * dx + 1e-12) << "ring " << ring;
+    EXPECT_LE(std::abs(node_rest_position(spec, i, 0).x() - ring_rest_centre(spec, ring).x()), 0.5 * dx + 1e-12)
+        << "ring " << ring;
   }
   EXPECT_EQ(nodes.size(), 10u) << "no node is bound twice";
   EXPECT_EQ(bound.front().first, 0);
@@ -87,7 +88,8 @@ TEST(BulletPeers, StartFromTheSpecsState) {
       const Vectors3 x = r->nodes();
       ASSERT_EQ(x.cols(), n * n);
       for (int j = 0; j < n; ++j)
-        for (int i = 0; i < n; ++i) EXPECT_EQ(x.col(j * n + i), node_rest_position(spec, i, j)) << r->system() << " node " << i << ", " << j;
+        for (int i = 0; i < n; ++i)
+          EXPECT_EQ(x.col(j * n + i), node_rest_position(spec, i, j)) << r->system() << " node " << i << ", " << j;
       const AttachmentError e = r->attachment();
       EXPECT_EQ(e.bound_node, 0.0) << r->system();
       EXPECT_EQ(e.ring_joint, 0.0) << r->system();
@@ -124,8 +126,9 @@ TEST(BulletClassic, CurtainHangsWithMillimetreAnchorDriftAndConservesMomentumAlo
   EXPECT_LT(worst_drift, 0.05);
   EXPECT_LT(e.ring_joint, 1e-3);
   EXPECT_LT(worst_momentum, 1e-12);
-  std::cout << "classic 20x20: bound node " << e.bound_node << " m (max " << worst_drift << " m), ring joint " << e.ring_joint
-            << " m, momentum change " << worst_momentum << " kg m/s, energy " << classic->energy() << " J\n";
+  std::cout << "classic 20x20: bound node " << e.bound_node << " m (max " << worst_drift << " m), ring joint "
+            << e.ring_joint << " m, momentum change " << worst_momentum << " kg m/s, energy " << classic->energy()
+            << " J\n";
 }
 
 // ---- deformable ---------------------------------------------------------------------------------
@@ -150,9 +153,9 @@ TEST(BulletDeformable, ImplicitProjectedCurtainHasItsAnchorsOverwritten) {
   const AttachmentError e = deformable->attachment();
   EXPECT_GT(e.bound_node_before_overwrite, 0.0);
   EXPECT_LT(worst_before, 1e-4);
-  std::cout << "deformable 20x20 k=200: before overwrite " << e.bound_node_before_overwrite << " m (max " << worst_before
-            << " m), ring joint " << e.ring_joint << " m, momentum " << deformable->momentum_along_rod() << " kg m/s, energy "
-            << deformable->energy() << " J\n";
+  std::cout << "deformable 20x20 k=200: before overwrite " << e.bound_node_before_overwrite << " m (max "
+            << worst_before << " m), ring joint " << e.ring_joint << " m, momentum " << deformable->momentum_along_rod()
+            << " kg m/s, energy " << deformable->energy() << " J\n";
 }
 
 // Known defect of the peer, asserted so that a Bullet that fixes it shows up here: with setImplicit(true)
@@ -179,7 +182,8 @@ TEST(BulletDeformable, KnownDefectImplicitWithoutProjectionDropsEveryForce) {
   EXPECT_LT(dropped, 1e-3) << "the forces are no longer dropped: Bullet fixed the implicit path without projection";
   const double control = bottom_row_motion(DeformableSettings{});
   EXPECT_GT(control, 5e-3) << "with projection the sheet sags";
-  std::cout << "deformable without projection: bottom row moved " << dropped << " m (with projection " << control << " m)\n";
+  std::cout << "deformable without projection: bottom row moved " << dropped << " m (with projection " << control
+            << " m)\n";
 }
 
 }  // namespace

@@ -74,8 +74,8 @@ TEST(DemoRender, AFileWhereTheFolderShouldBeIsNamed) {
   const fs::path dir = out_dir("not-a-folder");
   std::ofstream(dir / "taken") << "x";
   const std::string log = (dir / "log.txt").string();
-  const int status = std::system((std::string(SINEW_DEMO) + " hello --frames 1 --size 64x48 --render " + (dir / "taken").string() + " > " +
-                                  log + " 2>&1")
+  const int status = std::system((std::string(SINEW_DEMO) + " hello --frames 1 --size 64x48 --render " +
+                                  (dir / "taken").string() + " > " + log + " 2>&1")
                                      .c_str());
   EXPECT_NE(status, 0);
   std::ifstream in(log);
@@ -89,8 +89,9 @@ TEST(DemoRender, BadSizeIsRefused) {
 
 // The number of frames ffprobe counts in a video, or -1 when it cannot read one.
 int video_frames(const fs::path& file) {
-  const std::string command = "ffprobe -v error -count_frames -select_streams v:0 -show_entries stream=nb_read_frames -of csv=p=0 '" +
-                              file.string() + "' 2>/dev/null";
+  const std::string command =
+      "ffprobe -v error -count_frames -select_streams v:0 -show_entries stream=nb_read_frames -of csv=p=0 '" +
+      file.string() + "' 2>/dev/null";
   FILE* pipe = popen(command.c_str(), "r");
   if (pipe == nullptr) return -1;
   int n = -1;
@@ -102,11 +103,13 @@ int video_frames(const fs::path& file) {
 TEST(DemoVideo, AssemblesAnMp4AndAGif) {
   if (run("command -v ffmpeg") != 0) GTEST_SKIP() << "ffmpeg is not installed (.ci/deps installs it)";
   const fs::path dir = out_dir("video");
-  ASSERT_EQ(run(std::string(SINEW_DEMO) + " hello --frames 6 --size 160x90 --video " + (dir / "hello.mp4").string()), 0);
+  ASSERT_EQ(run(std::string(SINEW_DEMO) + " hello --frames 6 --size 160x90 --video " + (dir / "hello.mp4").string()),
+            0);
   ASSERT_TRUE(fs::exists(dir / "hello.mp4"));
   EXPECT_EQ(head(dir / "hello.mp4", 8).substr(4), "ftyp") << "not an MP4 file";
   EXPECT_EQ(video_frames(dir / "hello.mp4"), 6);
-  ASSERT_EQ(run(std::string(SINEW_DEMO) + " hello --frames 6 --size 160x90 --video " + (dir / "hello.gif").string()), 0);
+  ASSERT_EQ(run(std::string(SINEW_DEMO) + " hello --frames 6 --size 160x90 --video " + (dir / "hello.gif").string()),
+            0);
   EXPECT_EQ(head(dir / "hello.gif", 6), "GIF89a");
 }
 
@@ -115,8 +118,8 @@ TEST(DemoVideo, HasThisRunsFramesOnly) {
   if (run("command -v ffprobe") != 0) GTEST_SKIP() << "ffmpeg is not installed (.ci/deps installs it)";
   const fs::path dir = out_dir("stale");
   ASSERT_EQ(run(std::string(SINEW_DEMO) + " hello --frames 6 --size 64x48 --render " + (dir / "frames").string()), 0);
-  ASSERT_EQ(run(std::string(SINEW_DEMO) + " hello --frames 3 --size 64x48 --render " + (dir / "frames").string() + " --video " +
-                (dir / "three.mp4").string()),
+  ASSERT_EQ(run(std::string(SINEW_DEMO) + " hello --frames 3 --size 64x48 --render " + (dir / "frames").string() +
+                " --video " + (dir / "three.mp4").string()),
             0);
   EXPECT_EQ(video_frames(dir / "three.mp4"), 3);
 }
@@ -125,9 +128,10 @@ TEST(DemoVideo, MissingFfmpegIsNamed) {
   const fs::path dir = out_dir("no-ffmpeg");
   const std::string log = (dir / "log.txt").string();
   // With an empty PATH the shell finds no ffmpeg.
-  const int status = std::system(("PATH=/nonexistent " + std::string(SINEW_DEMO) + " hello --frames 1 --size 64x64 --video " +
-                                  (dir / "x.mp4").string() + " > " + log + " 2>&1")
-                                     .c_str());
+  const int status =
+      std::system(("PATH=/nonexistent " + std::string(SINEW_DEMO) + " hello --frames 1 --size 64x64 --video " +
+                   (dir / "x.mp4").string() + " > " + log + " 2>&1")
+                      .c_str());
   EXPECT_NE(status, 0);
   std::ifstream in(log);
   const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
@@ -139,8 +143,8 @@ TEST(Viewer, RunsUnderXvfbAndTakesAScreenshot) {
   if (run("command -v xvfb-run") != 0) GTEST_SKIP() << "xvfb-run is not installed (.ci/deps installs xvfb)";
   const fs::path dir = out_dir("viewer");
   const fs::path shot = dir / "curtain.png";
-  ASSERT_EQ(run("xvfb-run -a -s '-screen 0 1024x768x24' " + std::string(SINEW_VIEW) + " curtain --size 480x270 --frames 20 --screenshot " +
-                shot.string()),
+  ASSERT_EQ(run("xvfb-run -a -s '-screen 0 1024x768x24' " + std::string(SINEW_VIEW) +
+                " curtain --size 480x270 --frames 20 --screenshot " + shot.string()),
             0);
   expect_picture(shot, 480, 270);
 }

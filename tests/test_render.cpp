@@ -38,7 +38,8 @@ Rendered render_scene(const std::string& name, int frames) {
     if (!picture.is_subject(m)) continue;
     for (Index i = 0; i < m.vertices.cols(); ++i) {
       const Vec3 p = camera.project(m.vertices.col(i), kWidth, kHeight);
-      out.box = {std::min(out.box[0], p.x()), std::min(out.box[1], p.y()), std::max(out.box[2], p.x()), std::max(out.box[3], p.y())};
+      out.box = {std::min(out.box[0], p.x()), std::min(out.box[1], p.y()), std::max(out.box[2], p.x()),
+                 std::max(out.box[3], p.y())};
     }
   }
   return out;
@@ -59,13 +60,15 @@ TEST_P(RenderScene, ClothWhereItsBoxSaysAndStableBetweenRuns) {
     for (int x = 0; x < kWidth; ++x) {
       if (r.mask[4 * (y * kWidth + x)] < 128) continue;
       // Pixel centres at +0.5; one pixel of slack for rasterisation at the box's edges.
-      const bool in_box = x + 0.5 >= r.box[0] - 1 && x + 0.5 <= r.box[2] + 1 && y + 0.5 >= r.box[1] - 1 && y + 0.5 <= r.box[3] + 1;
+      const bool in_box =
+          x + 0.5 >= r.box[0] - 1 && x + 0.5 <= r.box[2] + 1 && y + 0.5 >= r.box[1] - 1 && y + 0.5 <= r.box[3] + 1;
       (in_box ? inside : outside) += 1;
     }
   EXPECT_EQ(outside, 0) << "cloth pixels outside the cloth's projected bounding box";
   const double box_area = (r.box[2] - r.box[0]) * (r.box[3] - r.box[1]);
   // A cloth seen at an angle fills a good part of its box; a net of thin rods much less of it.
-  EXPECT_GT(inside, (r.sheet ? 0.15 : 0.05) * box_area) << "the subject covers too little of its box: " << inside << " of " << box_area;
+  EXPECT_GT(inside, (r.sheet ? 0.15 : 0.05) * box_area)
+      << "the subject covers too little of its box: " << inside << " of " << box_area;
 
   // The shaded picture: not blank, many shades, and the cloth's pixels are not the background's.
   std::set<std::uint32_t> colours;
@@ -141,7 +144,8 @@ TEST(RenderPick, PicksTheNearestFreeParticleInFront) {
   EXPECT_EQ(render::pick_particle(s, camera, at_aside.x() + 3, at_aside.y() - 2, 10, w, h), aside);
   EXPECT_EQ(render::pick_particle(s, camera, at_aside.x() + 30, at_aside.y(), 10, w, h), -1);
   const Vec3 at_kinematic = camera.project(Vec3(0, 0.2, 2), w, h);
-  EXPECT_NE(render::pick_particle(s, camera, at_kinematic.x(), at_kinematic.y(), 3, w, h), 3) << "picked the kinematic cursor";
+  EXPECT_NE(render::pick_particle(s, camera, at_kinematic.x(), at_kinematic.y(), 3, w, h), 3)
+      << "picked the kinematic cursor";
   (void)back;
 }
 

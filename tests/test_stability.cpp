@@ -30,7 +30,8 @@ StabilityResult expect_survives(const StabilityCase& c) {
   const StabilityResult r = run_stability_case(c, "sinew");
   EXPECT_TRUE(r.survived) << c.name << ": failed at frame " << r.failed_frame << ": " << r.reason;
   EXPECT_EQ(r.frames, c.frames) << c.name;
-  EXPECT_LE(r.energy_gain, kEnergyGain) << c.name << ": energy rose by " << r.energy_gain << " of " << r.energy_scale << " J";
+  EXPECT_LE(r.energy_gain, kEnergyGain) << c.name << ": energy rose by " << r.energy_gain << " of " << r.energy_scale
+                                        << " J";
   EXPECT_LT(r.max_ring_joint, kRingJoint) << c.name;
   return r;
 }
@@ -45,7 +46,8 @@ StabilityResult expect_survives_hard_bound(const StabilityCase& c) {
 // positive for a right-handed turn about +x [rad].
 double turn_about_rod(const CurtainSpec& spec, const Vec3& node, int ring) {
   const Vec3 r = node - ring_rest_centre(spec, ring);
-  return std::atan2(-r.z(), -r.y());  // the node starts at (0, -R, 0) from the axis; turned by a: (0, -R cos a, -R sin a)
+  return std::atan2(-r.z(),
+                    -r.y());  // the node starts at (0, -R, 0) from the axis; turned by a: (0, -R cos a, -R sin a)
 }
 
 TEST(Stability, EveryTopRowNodeBound) {
@@ -128,7 +130,8 @@ TEST(Stability, RingsSpunTo100RadPerSecond) {
 TEST(Stability, FastDropOnAThinPlateDoesNotTunnel) {
   const StabilityCase c = stability_case("fast_drop_on_thin_plate");
   const DropSpec& d = c.drop_spec;
-  ASSERT_GT(d.drop_speed * c.frame_dt / c.steps, 2 * d.plate_thickness) << "a tick must move the cloth further than the plate is thick";
+  ASSERT_GT(d.drop_speed * c.frame_dt / c.steps, 2 * d.plate_thickness)
+      << "a tick must move the cloth further than the plate is thick";
   const StabilityResult r = expect_survives(c);
   EXPECT_FALSE(r.tunnelled);
   EXPECT_GE(r.min_clearance, d.plate_thickness) << "a node went into the plate";
@@ -191,7 +194,8 @@ void expect_multigrid_survives(const StabilityCase& c) {
   const StabilityResult r = run_stability_case(c, "sinew-multigrid");
   EXPECT_TRUE(r.survived) << c.name << ": failed at frame " << r.failed_frame << ": " << r.reason;
   EXPECT_EQ(r.frames, c.frames) << c.name;
-  EXPECT_LE(r.energy_gain, kEnergyGain) << c.name << ": energy rose by " << r.energy_gain << " of " << r.energy_scale << " J";
+  EXPECT_LE(r.energy_gain, kEnergyGain) << c.name << ": energy rose by " << r.energy_gain << " of " << r.energy_scale
+                                        << " J";
   EXPECT_LT(r.max_ring_joint, kRingJoint) << c.name;
   if (c.binding_spring_stiffness == 0.0 && !c.drop) {
     EXPECT_LT(r.max_drift, kHardDrift) << c.name;

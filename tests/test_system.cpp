@@ -56,7 +56,8 @@ struct FloatingScene {
     cloth = scenes::add_cloth_grid(system, c);
     for (int i = 0; i < 3; ++i) system.bind_rigid_here(cloth.node(i, 0), body);
     for (int i = 3; i < 6; ++i) {
-      const Index point = system.add_particle(system.particles().x.col(cloth.node(i, 0)) + Vec3(0, 0.01, 0), Vec3::Zero(), 0.0);
+      const Index point =
+          system.add_particle(system.particles().x.col(cloth.node(i, 0)) + Vec3(0, 0.01, 0), Vec3::Zero(), 0.0);
       system.bind_rigid_here(point, body);
       system.add_binding_spring({cloth.node(i, 0), point, 1e4, zeta});
     }
@@ -154,7 +155,8 @@ TEST(System, StepAllocatesNothingAfterItsFirstCall) {
   settings.cloth.nx = settings.cloth.ny = 10;
   scenes::add_hanging_cloth(s, settings);
   const double dt = 0.9 * s.stable_dt();
-  EXPECT_GT(allocations_during([&] { s.step(dt); }), 0);  // the first call sets up scratch buffers: the counter must see it
+  EXPECT_GT(allocations_during([&] { s.step(dt); }),
+            0);  // the first call sets up scratch buffers: the counter must see it
   EXPECT_EQ(allocations_during([&] {
               for (int i = 0; i < 5; ++i) s.step(dt);
             }),
@@ -177,7 +179,8 @@ TEST(System, StepWithJointRowsAllocatesNothingAfterItsFirstCall) {
     rows.push_back({scene.rod, (Vec6() << Vec3::Unit(axis), Vec3::Zero()).finished()});
     rows.push_back({scene.rod, (Vec6() << Vec3::Zero(), Vec3::Unit(axis)).finished()});
   }
-  rows.push_back({scene.rod, (Vec6() << Vec3::UnitX(), Vec3::Zero()).finished(), other, (Vec6() << -Vec3::UnitX(), Vec3::Zero()).finished()});
+  rows.push_back({scene.rod, (Vec6() << Vec3::UnitX(), Vec3::Zero()).finished(), other,
+                  (Vec6() << -Vec3::UnitX(), Vec3::Zero()).finished()});
   s.set_joint_rows(rows);
   const double dt = 0.9 * s.stable_dt();
   s.step(dt);
@@ -210,7 +213,8 @@ TEST(System, OneAndTwoThreadsAreBitIdentical) {
         return s;
       };
       expect_bit_identical(run(1), run(2),
-                           std::to_string(side) + " x " + std::to_string(side) + ", " + (implicit ? "implicit" : "explicit") + " elasticity");
+                           std::to_string(side) + " x " + std::to_string(side) + ", " +
+                               (implicit ? "implicit" : "explicit") + " elasticity");
     }
   }
 }
@@ -280,7 +284,8 @@ TEST(Newmark, SpringChainConvergesAtSecondOrder) {
     return Vectors3(s.particles().x);
   };
   const Vectors3 reference = run(1e-3 / 16);
-  const double e1 = (run(1e-3) - reference).norm(), e2 = (run(5e-4) - reference).norm(), e3 = (run(2.5e-4) - reference).norm();
+  const double e1 = (run(1e-3) - reference).norm(), e2 = (run(5e-4) - reference).norm(),
+               e3 = (run(2.5e-4) - reference).norm();
   EXPECT_NEAR(std::log2(e1 / e2), 2.0, 0.15);
   EXPECT_NEAR(std::log2(e2 / e3), 2.0, 0.15);
 }
@@ -387,7 +392,8 @@ TEST(System, BindingsReportTheForceTheyCarry) {
   const Index p = s.add_particle(Vec3(0.1, 0, 0), Vec3::Zero(), 0.0);
   s.bind_rigid_here(p, body);
   const Index q = s.add_particle(Vec3(0.1, -0.2, 0), Vec3::Zero(), 0.3);
-  s.add_force(std::make_unique<EdgeSprings>(std::vector<EdgeSprings::Edge>{{p, q}}, s.particles().x, EdgeSpringsSettings{500.0, 5.0}));
+  s.add_force(std::make_unique<EdgeSprings>(std::vector<EdgeSprings::Edge>{{p, q}}, s.particles().x,
+                                            EdgeSpringsSettings{500.0, 5.0}));
   const Index anchor = s.add_kinematic_particle(Vec3(1, 0, 0));
   const Index r = s.add_particle(Vec3(1, 0, 0), Vec3::Zero(), 0.3);
   const Index spring = s.add_binding_spring({r, anchor, 2e3, 1.0});
@@ -400,7 +406,11 @@ TEST(System, BindingsReportTheForceTheyCarry) {
 // ---- bad input ----------------------------------------------------------------------------------
 
 TEST(System, BadSettingsAreNamed) {
-  EXPECT_NE(error_of([] { System s; s.add_particle(Vec3::Zero(), Vec3::Zero(), -1.0); }).find("particle 0: mass -1"), std::string::npos);
+  EXPECT_NE(error_of([] {
+              System s;
+              s.add_particle(Vec3::Zero(), Vec3::Zero(), -1.0);
+            }).find("particle 0: mass -1"),
+            std::string::npos);
   EXPECT_NE(error_of([] {
               System s;
               for (int i = 0; i < 3; ++i) s.add_particle(Vec3::Random(), Vec3::Zero(), 1.0);
@@ -435,7 +445,11 @@ TEST(System, BadSettingsAreNamed) {
               s.finalize();
             }).find("particle 0 has mass 0"),
             std::string::npos);
-  EXPECT_NE(error_of([] { System s; s.step(std::nan("")); }).find("dt nan"), std::string::npos);
+  EXPECT_NE(error_of([] {
+              System s;
+              s.step(std::nan(""));
+            }).find("dt nan"),
+            std::string::npos);
   EXPECT_NE(error_of([] {
               System s;
               s.add_particle(Vec3::Zero(), Vec3::Zero(), 1.0);
@@ -473,7 +487,8 @@ INSTANTIATE_TEST_SUITE_P(
                       BadStepSetting{"cfl = -0.5", [](StepSettings& s) { s.cfl = -0.5; }},
                       BadStepSetting{"cfl = 1.5", [](StepSettings& s) { s.cfl = 1.5; }},
                       BadStepSetting{"max_substeps = 0", [](StepSettings& s) { s.max_substeps = 0; }},
-                      BadStepSetting{"multigrid needs jacobi_preconditioner", [](StepSettings& s) {
+                      BadStepSetting{"multigrid needs jacobi_preconditioner",
+                                     [](StepSettings& s) {
                                        s.multigrid = true;
                                        s.jacobi_preconditioner = false;
                                      }}),
@@ -488,7 +503,8 @@ TEST_P(StepSettingsValidation, StepAndAdvanceRefuseItByNameAndStepOnceFixed) {
   System s;
   const Index p = s.add_particle(Vec3::Zero(), Vec3::Zero(), 1.0);
   const Index q = s.add_particle(Vec3::UnitX(), Vec3::Zero(), 1.0);
-  s.add_force(std::make_unique<EdgeSprings>(std::vector<EdgeSprings::Edge>{{p, q}}, s.particles().x, EdgeSpringsSettings{100.0, 0.1}));
+  s.add_force(std::make_unique<EdgeSprings>(std::vector<EdgeSprings::Edge>{{p, q}}, s.particles().x,
+                                            EdgeSpringsSettings{100.0, 0.1}));
   const StepSettings good = s.step_settings();
   GetParam().spoil(s.step_settings());
   for (const std::string& message : {error_of([&] { s.step(0.01); }), error_of([&] { s.advance(1.0 / 60); })}) {

@@ -14,7 +14,10 @@ class ToyDrop final : public CoreScene {
   }
 };
 
-SINEW_REGISTER_SCENE({.name = "toy-drop", .description = "test only: one particle falling from rest", .kind = SceneKind::core, .make = construct<ToyDrop>});
+SINEW_REGISTER_SCENE({.name = "toy-drop",
+                      .description = "test only: one particle falling from rest",
+                      .kind = SceneKind::core,
+                      .make = construct<ToyDrop>});
 
 }  // namespace
 }  // namespace sinew::scenes

@@ -13,7 +13,8 @@ namespace {
 
 // The faces of a tet mesh that belong to one tet only, oriented outward (as the face sits in its
 // tet with positive volume: the opposite vertex behind it), in particle indices, in a fixed order.
-std::vector<std::array<Index, 3>> boundary_triangles(const std::vector<std::array<Index, 4>>& tets, const std::vector<Index>& particle) {
+std::vector<std::array<Index, 3>> boundary_triangles(const std::vector<std::array<Index, 4>>& tets,
+                                                     const std::vector<Index>& particle) {
   static constexpr int kFaces[4][3] = {{1, 2, 3}, {0, 3, 2}, {0, 1, 3}, {0, 2, 1}};
   struct Face {
     std::array<Index, 3> sorted, oriented;
@@ -68,8 +69,8 @@ ClothGrid add_cloth_grid(System& system, const ClothGridSettings& s) {
   return grid;
 }
 
-std::vector<Index> add_cloth_mesh(System& system, const Vectors3& vertices, const std::vector<std::array<Index, 3>>& triangles,
-                                  const ClothMaterial& s) {
+std::vector<Index> add_cloth_mesh(System& system, const Vectors3& vertices,
+                                  const std::vector<std::array<Index, 3>>& triangles, const ClothMaterial& s) {
   if (!(std::isfinite(s.mass) && s.mass > 0)) fail("cloth: mass ", s.mass, " must be positive");
   if (triangles.empty()) fail("cloth: no triangles");
   const Index count = vertices.cols();
@@ -80,7 +81,8 @@ std::vector<Index> add_cloth_mesh(System& system, const Vectors3& vertices, cons
     for (Index v : triangles[t])
       if (v < 0 || v >= count) fail("cloth: triangle ", t, " refers to vertex ", v, ", which does not exist");
     const auto& tri = triangles[t];
-    area[t] = 0.5 * (vertices.col(tri[1]) - vertices.col(tri[0])).cross(vertices.col(tri[2]) - vertices.col(tri[0])).norm();
+    area[t] =
+        0.5 * (vertices.col(tri[1]) - vertices.col(tri[0])).cross(vertices.col(tri[2]) - vertices.col(tri[0])).norm();
     total += area[t];
   }
   if (!(total > 0)) fail("cloth: the mesh has no area");
@@ -88,7 +90,8 @@ std::vector<Index> add_cloth_mesh(System& system, const Vectors3& vertices, cons
   for (std::size_t t = 0; t < triangles.size(); ++t)
     for (Index v : triangles[t]) mass[static_cast<std::size_t>(v)] += s.mass * area[t] / total / 3.0;
   std::vector<Index> particle(static_cast<std::size_t>(count));
-  for (Index v = 0; v < count; ++v) particle[static_cast<std::size_t>(v)] = system.add_particle(vertices.col(v), Vec3::Zero(), mass[v]);
+  for (Index v = 0; v < count; ++v)
+    particle[static_cast<std::size_t>(v)] = system.add_particle(vertices.col(v), Vec3::Zero(), mass[v]);
   std::vector<std::array<Index, 3>> mapped;
   for (const auto& t : triangles) mapped.push_back({particle[t[0]], particle[t[1]], particle[t[2]]});
 
@@ -107,11 +110,13 @@ std::vector<Index> add_cloth_mesh(System& system, const Vectors3& vertices, cons
   }
   std::vector<DihedralBending::Triangle> bending_triangles(mapped.begin(), mapped.end());
   if (s.bending_stiffness > 0)
-    system.add_force(std::make_unique<DihedralBending>(DihedralBending::hinges_from_triangles(bending_triangles), rest,
-                                                       DihedralBendingSettings{s.bending_stiffness, s.bending_damping, s.bending_implicit}));
+    system.add_force(std::make_unique<DihedralBending>(
+        DihedralBending::hinges_from_triangles(bending_triangles), rest,
+        DihedralBendingSettings{s.bending_stiffness, s.bending_damping, s.bending_implicit}));
   if (s.membrane_mu > 0 || s.membrane_lambda > 0)
-    system.add_force(std::make_unique<TriangleMembrane>(std::vector<TriangleMembrane::Triangle>(mapped.begin(), mapped.end()),
-                                                        rest, TriangleMembraneSettings{s.membrane_mu, s.membrane_lambda, s.membrane_damping}));
+    system.add_force(std::make_unique<TriangleMembrane>(
+        std::vector<TriangleMembrane::Triangle>(mapped.begin(), mapped.end()), rest,
+        TriangleMembraneSettings{s.membrane_mu, s.membrane_lambda, s.membrane_damping}));
   system.add_collision_surface(mapped);
   return particle;
 }
@@ -134,7 +139,8 @@ std::vector<Index> add_volume(System& system, const Vectors3& vertices, const st
   std::vector<Index> particle(static_cast<std::size_t>(count));
   for (Index v = 0; v < count; ++v) {
     if (!(mass[static_cast<std::size_t>(v)] > 0)) fail("volume: vertex ", v, " belongs to no tet");
-    particle[static_cast<std::size_t>(v)] = system.add_particle(vertices.col(v), Vec3::Zero(), mass[static_cast<std::size_t>(v)]);
+    particle[static_cast<std::size_t>(v)] =
+        system.add_particle(vertices.col(v), Vec3::Zero(), mass[static_cast<std::size_t>(v)]);
   }
   std::vector<CorotatedTets::Tet> mapped;
   for (const auto& t : tets) mapped.push_back({particle[t[0]], particle[t[1]], particle[t[2]], particle[t[3]]});

@@ -33,9 +33,8 @@ double dot(const GeneralizedVector& a, const GeneralizedVector& b) {
 void axpy(double alpha, const GeneralizedVector& x, GeneralizedVector& y) {
   const double* px = x.particles.data();
   double* py = y.particles.data();
-  for_flat_ranges(x.particles.size(), [&](Index i0, Index i1) {
-    FlatMap(py + i0, i1 - i0) += alpha * ConstFlatMap(px + i0, i1 - i0);
-  });
+  for_flat_ranges(x.particles.size(),
+                  [&](Index i0, Index i1) { FlatMap(py + i0, i1 - i0) += alpha * ConstFlatMap(px + i0, i1 - i0); });
   y.rigid += alpha * x.rigid;
 }
 
@@ -74,9 +73,9 @@ void ConjugateGradients::resize(Index particle_count, Index rigid_count) {
 // (symmetric in the plain inner product; the paper's mass inner product form is the same iteration).
 // Constrained directions (kinematic rows and bodies, collision constraints, joint rows) keep their
 // initial values.
-SolveResult ConjugateGradients::solve(LinearOperator& op, const GeneralizedVector& c, GeneralizedVector& y, double tolerance,
-                                      int max_iterations, bool iterate, GeneralizedVector* alternative, Alternative rule,
-                                      long step) {
+SolveResult ConjugateGradients::solve(LinearOperator& op, const GeneralizedVector& c, GeneralizedVector& y,
+                                      double tolerance, int max_iterations, bool iterate,
+                                      GeneralizedVector* alternative, Alternative rule, long step) {
   SolveResult result;
   op.impose(y);
   if (alternative) op.impose(*alternative);
@@ -106,9 +105,10 @@ SolveResult ConjugateGradients::solve(LinearOperator& op, const GeneralizedVecto
     op.project(m_p);
     op.precondition(m_p, m_q);
     const double alternative_residual = max_abs(m_q);
-    const bool take = rule == Alternative::if_smaller
-                          ? result.residual > tolerance && (alternative_residual <= tolerance || dot(m_p, m_q) < dot(m_r, m_z))
-                          : alternative_residual <= 1e-3 * tolerance && alternative_residual < result.residual;
+    const bool take =
+        rule == Alternative::if_smaller
+            ? result.residual > tolerance && (alternative_residual <= tolerance || dot(m_p, m_q) < dot(m_r, m_z))
+            : alternative_residual <= 1e-3 * tolerance && alternative_residual < result.residual;
     if (take) {
       y.particles = alternative->particles;
       y.rigid = alternative->rigid;

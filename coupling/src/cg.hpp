@@ -66,8 +66,8 @@ class ConjugateGradients {
   /// `alternative`, a second guess taken instead by `rule`. Without `iterate` (no implicit term: S is
   /// the mass matrix, which the preconditioner inverts exactly) one preconditioned correction.
   /// Throws naming step `step` when an iteration turns non-finite.
-  SolveResult solve(LinearOperator& op, const GeneralizedVector& c, GeneralizedVector& y, double tolerance, int max_iterations,
-                    bool iterate, GeneralizedVector* alternative, Alternative rule, long step);
+  SolveResult solve(LinearOperator& op, const GeneralizedVector& c, GeneralizedVector& y, double tolerance,
+                    int max_iterations, bool iterate, GeneralizedVector* alternative, Alternative rule, long step);
 
  private:
   GeneralizedVector m_r, m_z, m_p, m_q;

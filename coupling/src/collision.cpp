@@ -6,7 +6,8 @@ namespace sinew {
 
 void CollisionContext::apply_body_impulse(Index body, const Vec3& point, const Vec3& j) {
   RigidBodyParticles& b = *m_bodies;
-  if (body < 0 || body >= b.size()) fail("collision impulse on rigid body ", body, ", which does not exist (there are ", b.size(), ")");
+  if (body < 0 || body >= b.size())
+    fail("collision impulse on rigid body ", body, ", which does not exist (there are ", b.size(), ")");
   if (!all_finite(j) || !all_finite(point)) fail("collision impulse on rigid body ", body, " is not finite");
   if (b.kinematic[body]) return;
   const Vec3 r = point - b.x.col(body);
@@ -29,7 +30,8 @@ class FunctionSource final : public CollisionSource {
 };
 }  // namespace
 
-std::unique_ptr<CollisionSource> make_collision_source(std::string name, std::function<void(CollisionContext&)> process) {
+std::unique_ptr<CollisionSource> make_collision_source(std::string name,
+                                                       std::function<void(CollisionContext&)> process) {
   if (!process) fail("collision source '", name, "': no function");
   return std::make_unique<FunctionSource>(std::move(name), std::move(process));
 }

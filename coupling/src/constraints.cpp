@@ -58,7 +58,8 @@ void Constraints::prepare_collisions() {
       if (g < 0) continue;
       rows[static_cast<std::size_t>(g)].push_back(k);
       for (int a = 0; a < m_collisions[k].size; ++a)
-        m_collision_groups[static_cast<std::size_t>(g)].particles.push_back(m_collisions[k].particles[static_cast<std::size_t>(a)]);
+        m_collision_groups[static_cast<std::size_t>(g)].particles.push_back(
+            m_collisions[k].particles[static_cast<std::size_t>(a)]);
     }
     for (std::size_t g = 0; g < m_collision_groups.size(); ++g) {
       CollisionGroup& group = m_collision_groups[g];
@@ -71,7 +72,8 @@ void Constraints::prepare_collisions() {
         const CollisionConstraint& c = m_collisions[rows[g][static_cast<std::size_t>(i)]];
         t[i] = c.normal_velocity;
         for (int a = 0; a < c.size; ++a) {
-          const auto slot = std::lower_bound(group.particles.begin(), group.particles.end(), c.particles[static_cast<std::size_t>(a)]) -
+          const auto slot = std::lower_bound(group.particles.begin(), group.particles.end(),
+                                             c.particles[static_cast<std::size_t>(a)]) -
                             group.particles.begin();
           J.row(i).segment<3>(3 * slot) += c.weights[static_cast<std::size_t>(a)] * c.normal.transpose();
         }
@@ -150,7 +152,8 @@ void Constraints::shift(const CollisionConstraint& c, GeneralizedVector& u, doub
   if (!(jj > 0.0)) return;
   const double lambda = (target - ju) / jj;
   for (int a = 0; a < c.size; ++a)
-    u.particles.col(c.particles[static_cast<std::size_t>(a)]) += (c.weights[static_cast<std::size_t>(a)] * lambda) * c.normal;
+    u.particles.col(c.particles[static_cast<std::size_t>(a)]) +=
+        (c.weights[static_cast<std::size_t>(a)] * lambda) * c.normal;
 }
 
 // Each joint group's twists u_g -> u_g - Q Q^T u_g (the rows' null space), plus the particular

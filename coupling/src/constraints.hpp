@@ -64,7 +64,7 @@ class Constraints {
     Eigen::MatrixXd basis;      // 6k x rank, orthonormal, spanning the rows
     VectorXd particular;        // 6k, in the span: the least-norm twists on the targets
     // Set-up scratch, kept so that a step whose joints have the same shape as the last allocates nothing.
-    std::vector<Index> rows;    // indices into the system's joint rows
+    std::vector<Index> rows;  // indices into the system's joint rows
     Eigen::MatrixXd J;
     VectorXd t, coefficients;
     Eigen::JacobiSVD<Eigen::MatrixXd> svd;

@@ -19,7 +19,8 @@ std::array<double, 3> triangle_weights(const Vec3& a, const Vec3& b, const Vec3&
   const Vec3 e1 = b - a, e2 = c - a, d = p - a;
   const double d11 = e1.dot(e1), d12 = e1.dot(e2), d22 = e2.dot(e2);
   const double det = d11 * d22 - d12 * d12;
-  if (!(det > 1e-14 * d11 * d22)) fail("triangle embedding: triangle is degenerate (area ", 0.5 * std::sqrt(std::max(det, 0.0)), ")");
+  if (!(det > 1e-14 * d11 * d22))
+    fail("triangle embedding: triangle is degenerate (area ", 0.5 * std::sqrt(std::max(det, 0.0)), ")");
   const double u = (d22 * d.dot(e1) - d12 * d.dot(e2)) / det;
   const double v = (d11 * d.dot(e2) - d12 * d.dot(e1)) / det;
   return {1.0 - u - v, u, v};

@@ -8,7 +8,8 @@ namespace sinew {
 void HardBindings::add_linear(Index particle, std::span<const Index> parents, std::span<const double> weights) {
   const Index id = m_added;
   if (parents.empty()) fail("binding ", id, ": no parents");
-  if (parents.size() != weights.size()) fail("binding ", id, ": ", parents.size(), " parents but ", weights.size(), " weights");
+  if (parents.size() != weights.size())
+    fail("binding ", id, ": ", parents.size(), " parents but ", weights.size(), " weights");
   double sum = 0.0;
   for (std::size_t i = 0; i < weights.size(); ++i) {
     if (!std::isfinite(weights[i])) fail("binding ", id, ": weight ", i, " is ", weights[i]);
@@ -51,7 +52,8 @@ void HardBindings::rebuild_lookup(Index particle_count) {
   };
   const auto all = kinds();
   for (std::size_t kind = 0; kind < all.size(); ++kind)
-    for (Index k = 0; k < all[kind]->size(); ++k) mark(static_cast<int>(kind), k, all[kind]->particle(k), all[kind]->id(k));
+    for (Index k = 0; k < all[kind]->size(); ++k)
+      mark(static_cast<int>(kind), k, all[kind]->particle(k), all[kind]->id(k));
 }
 
 void HardBindings::flatten(Index particle_count, Index rigid_count) {
@@ -60,7 +62,8 @@ void HardBindings::flatten(Index particle_count, Index rigid_count) {
       fail("binding ", m_rigid.id(k), ": rigid body ", m_rigid.body(k), " out of range [0, ", rigid_count, ")");
   for (Index k = 0; k < m_linear.size(); ++k)
     for (Index p : m_linear.parents(k))
-      if (p < 0 || p >= particle_count) fail("binding ", m_linear.id(k), ": parent ", p, " out of range [0, ", particle_count, ")");
+      if (p < 0 || p >= particle_count)
+        fail("binding ", m_linear.id(k), ": parent ", p, " out of range [0, ", particle_count, ")");
   rebuild_lookup(particle_count);
 
   // Expand every linear binding until its parents are unbound. A chain longer than the number of
@@ -77,7 +80,8 @@ void HardBindings::flatten(Index particle_count, Index rigid_count) {
   for (Index k = 0; k < m_linear.size(); ++k) {
     const Index id = m_linear.id(k);
     terms.clear();
-    for (std::size_t i = 0; i < m_linear.parents(k).size(); ++i) terms.push_back({m_linear.parents(k)[i], m_linear.weights(k)[i]});
+    for (std::size_t i = 0; i < m_linear.parents(k).size(); ++i)
+      terms.push_back({m_linear.parents(k)[i], m_linear.weights(k)[i]});
     Index rigid_body_of_chain = -1;
     Vec3 rigid_r0 = Vec3::Zero();
     double rigid_weight = 0.0;
@@ -99,7 +103,8 @@ void HardBindings::flatten(Index particle_count, Index rigid_count) {
                ", which cannot be the parent of an embedded point");
         } else {
           if (rigid_body_of_chain >= 0 && rigid_body_of_chain != m_rigid.body(code))
-            fail("binding ", id, ": parents lie on different rigid bodies (", rigid_body_of_chain, " and ", m_rigid.body(code), ")");
+            fail("binding ", id, ": parents lie on different rigid bodies (", rigid_body_of_chain, " and ",
+                 m_rigid.body(code), ")");
           rigid_body_of_chain = m_rigid.body(code);
           rigid_r0 += t.weight * m_rigid.offset_body(code);
           rigid_weight += t.weight;
@@ -111,7 +116,8 @@ void HardBindings::flatten(Index particle_count, Index rigid_count) {
     if (rigid_body_of_chain >= 0) {
       // A point embedded among points of one rigid frame is itself a point of that frame:
       // sum_i w_i (x_c + R r0_i) = x_c + R sum_i w_i r0_i because sum_i w_i = 1.
-      if (!terms.empty()) fail("binding ", id, ": parents mix a rigid frame and free particles, which is not a linear map");
+      if (!terms.empty())
+        fail("binding ", id, ": parents mix a rigid frame and free particles, which is not a linear map");
       m_rigid.add(id, m_linear.particle(k), rigid_body_of_chain, rigid_r0 / rigid_weight);
       continue;
     }
@@ -161,9 +167,11 @@ void HardBindings::add_preconditioner_blocks(DiagonalBlocks& blocks, std::vector
   for (const BindingKind* kind : kinds()) kind->add_preconditioner_blocks(blocks, body_blocks);
 }
 
-void HardBindings::inverse_effective_masses(const VectorXd& mass, const RigidBodyParticles& bodies, VectorXd& inverse_mass) const {
+void HardBindings::inverse_effective_masses(const VectorXd& mass, const RigidBodyParticles& bodies,
+                                            VectorXd& inverse_mass) const {
   for (const BindingKind* kind : kinds())
-    for (Index k = 0; k < kind->size(); ++k) inverse_mass[kind->particle(k)] = kind->inverse_effective_mass(k, mass, bodies);
+    for (Index k = 0; k < kind->size(); ++k)
+      inverse_mass[kind->particle(k)] = kind->inverse_effective_mass(k, mass, bodies);
 }
 
 double HardBindings::max_drift(const Vectors3& x, const RigidBodyParticles& bodies) const {
@@ -180,15 +188,17 @@ void HardBindings::record_bound_rows(const Vectors3& f, Vectors3& out, bool add)
     }
 }
 
-Vec3 HardBindings::point_acceleration(Index particle, const Particles& p, const RigidBodyParticles& bodies, const Vectors3& f,
-                                      const Vectors6& wrench) const {
+Vec3 HardBindings::point_acceleration(Index particle, const Particles& p, const RigidBodyParticles& bodies,
+                                      const Vectors3& f, const Vectors6& wrench) const {
   if (const BindingKind* kind = kind_of(particle))
     return kind->point_acceleration(m_index_in_kind[particle], p, bodies, f, wrench);
   return p.kind[particle] == ParticleKind::kinematic ? Vec3::Zero() : Vec3(f.col(particle) / p.mass[particle]);
 }
 
-double HardBindings::effective_mass_along(Index particle, const Vec3& n, double scalar, const RigidBodyParticles& bodies) const {
-  if (const BindingKind* kind = kind_of(particle)) return kind->effective_mass_along(m_index_in_kind[particle], n, scalar, bodies);
+double HardBindings::effective_mass_along(Index particle, const Vec3& n, double scalar,
+                                          const RigidBodyParticles& bodies) const {
+  if (const BindingKind* kind = kind_of(particle))
+    return kind->effective_mass_along(m_index_in_kind[particle], n, scalar, bodies);
   return scalar;
 }
 
@@ -201,7 +211,8 @@ void HardBindings::push_drift(Index particle, const Vec3& dx, const Vec3& dv, Pa
                               const VectorXd& effective_mass, Vectors3& L_n) {
   if (kind_of(particle) != nullptr) {
     const int kind = m_kind_of[particle];
-    mutable_kinds()[static_cast<std::size_t>(kind)]->push_drift(m_index_in_kind[particle], dx, dv, effective_mass[particle], p, bodies, L_n);
+    mutable_kinds()[static_cast<std::size_t>(kind)]->push_drift(m_index_in_kind[particle], dx, dv,
+                                                                effective_mass[particle], p, bodies, L_n);
     return;
   }
   if (p.kind[particle] == ParticleKind::kinematic) return;  // a prescribed target cannot move

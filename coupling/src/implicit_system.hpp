@@ -28,7 +28,9 @@ class ImplicitSystem final : public LinearOperator {
   }
 
   void apply(const GeneralizedVector& u, GeneralizedVector& out) override;
-  void precondition(const GeneralizedVector& r, GeneralizedVector& z) override { m_preconditioner.apply(r, z, m_constraints); }
+  void precondition(const GeneralizedVector& r, GeneralizedVector& z) override {
+    m_preconditioner.apply(r, z, m_constraints);
+  }
   void project(GeneralizedVector& u) const override { m_constraints.project(u); }
   void impose(GeneralizedVector& u) const override { m_constraints.impose_joints(u); }
 

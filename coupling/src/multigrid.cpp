@@ -68,7 +68,8 @@ void sort_by_pair(std::vector<Item>& items, Index n, KeyOf&& key_of) {
     std::fill(start.begin(), start.end(), 0);
     for (const Item& item : items) ++start[static_cast<std::size_t>(key_of(item)[pass]) + 1];
     for (std::size_t i = 1; i < start.size(); ++i) start[i] += start[i - 1];
-    for (const Item& item : items) scratch[static_cast<std::size_t>(start[static_cast<std::size_t>(key_of(item)[pass])]++)] = item;
+    for (const Item& item : items)
+      scratch[static_cast<std::size_t>(start[static_cast<std::size_t>(key_of(item)[pass])]++)] = item;
     items.swap(scratch);
   }
 }
@@ -82,7 +83,8 @@ Index index_span(const std::vector<Index>& agg) {
 
 /// The pairs between distinct aggregates, merged and sorted, with the summed strengths.
 void merge_pairs(const std::vector<std::array<Index, 2>>& pairs, const std::vector<double>& strength,
-                 const std::vector<Index>& agg, std::vector<std::array<Index, 2>>& out, std::vector<double>& out_strength) {
+                 const std::vector<Index>& agg, std::vector<std::array<Index, 2>>& out,
+                 std::vector<double>& out_strength) {
   std::vector<std::pair<std::array<Index, 2>, double>> mapped;
   mapped.reserve(pairs.size());
   for (std::size_t k = 0; k < pairs.size(); ++k) {
@@ -112,7 +114,8 @@ void restrict_to(const AggregationMultigrid::Members& members, const Eigen::Matr
   parallel::for_ranges(n, [&](Index a0, Index a1) {
     for (Index a = a0; a < a1; ++a) {
       Eigen::Matrix<double, Rows, 1> sum = Eigen::Matrix<double, Rows, 1>::Zero();
-      for (Index k = members.offset[static_cast<std::size_t>(a)]; k < members.offset[static_cast<std::size_t>(a) + 1]; ++k)
+      for (Index k = members.offset[static_cast<std::size_t>(a)]; k < members.offset[static_cast<std::size_t>(a) + 1];
+           ++k)
         sum += fine.col(members.index[static_cast<std::size_t>(k)]);
       coarse.col(a) = sum;
     }
@@ -145,7 +148,8 @@ void gather_blocks(const AggregationMultigrid::Gather& gather, const std::vector
                    AggregationMultigrid::Blocks& diag, AggregationMultigrid::Blocks& pairs, BlockOf&& block_of) {
   auto add_terms = [&](Index t, Eigen::Map<Mat3> target) {
     Mat3 sum = target;
-    for (Index e = gather.offset[static_cast<std::size_t>(t)]; e < gather.offset[static_cast<std::size_t>(t) + 1]; ++e) {
+    for (Index e = gather.offset[static_cast<std::size_t>(t)]; e < gather.offset[static_cast<std::size_t>(t) + 1];
+         ++e) {
       const Index k = gather.term[static_cast<std::size_t>(e)];
       sum += scale * placed(plan[static_cast<std::size_t>(k)], block_of(k));
     }
@@ -172,7 +176,8 @@ void AggregationMultigrid::Gather::build(const std::vector<Index>& plan, Index d
   term.resize(static_cast<std::size_t>(offset.back()));
   std::vector<Index> fill(offset.begin(), offset.end() - 1);
   for (std::size_t k = 0; k < plan.size(); ++k)
-    if (plan[k] != kSkip) term[static_cast<std::size_t>(fill[static_cast<std::size_t>(target(plan[k]))]++)] = static_cast<Index>(k);
+    if (plan[k] != kSkip)
+      term[static_cast<std::size_t>(fill[static_cast<std::size_t>(target(plan[k]))]++)] = static_cast<Index>(k);
 }
 
 void AggregationMultigrid::Members::build(const std::vector<Index>& agg, Index aggregates) {
@@ -210,8 +215,8 @@ Index AggregationMultigrid::level_size(int l) const {
   return m_levels[static_cast<std::size_t>(l - 1)].n;
 }
 
-Index AggregationMultigrid::aggregate(Index n, const std::vector<std::array<Index, 2>>& pairs, const std::vector<double>& strength,
-                                      std::vector<Index>& agg) {
+Index AggregationMultigrid::aggregate(Index n, const std::vector<std::array<Index, 2>>& pairs,
+                                      const std::vector<double>& strength, std::vector<Index>& agg) {
   std::vector<Index> first, second;
   const Index half = match_pairs(n, pairs, strength, first);
   std::vector<std::array<Index, 2>> mid_pairs;
@@ -219,7 +224,8 @@ Index AggregationMultigrid::aggregate(Index n, const std::vector<std::array<Inde
   merge_pairs(pairs, strength, first, mid_pairs, mid_strength);
   const Index count = match_pairs(half, mid_pairs, mid_strength, second);
   agg.resize(static_cast<std::size_t>(n));
-  for (Index i = 0; i < n; ++i) agg[static_cast<std::size_t>(i)] = second[static_cast<std::size_t>(first[static_cast<std::size_t>(i)])];
+  for (Index i = 0; i < n; ++i)
+    agg[static_cast<std::size_t>(i)] = second[static_cast<std::size_t>(first[static_cast<std::size_t>(i)])];
   return count;
 }
 
@@ -269,9 +275,11 @@ void AggregationMultigrid::build_rows(Level& level) {
   level.row_col.resize(entries);
   level.row_pair.resize(entries);
   level.row_mid.resize(static_cast<std::size_t>(level.n));
-  std::vector<Index> fill_upper(level.row_offset.begin(), level.row_offset.end() - 1), fill_lower(static_cast<std::size_t>(level.n));
+  std::vector<Index> fill_upper(level.row_offset.begin(), level.row_offset.end() - 1),
+      fill_lower(static_cast<std::size_t>(level.n));
   for (Index i = 0; i < level.n; ++i) {
-    level.row_mid[static_cast<std::size_t>(i)] = level.row_offset[static_cast<std::size_t>(i)] + upper[static_cast<std::size_t>(i)];
+    level.row_mid[static_cast<std::size_t>(i)] =
+        level.row_offset[static_cast<std::size_t>(i)] + upper[static_cast<std::size_t>(i)];
     fill_lower[static_cast<std::size_t>(i)] = level.row_mid[static_cast<std::size_t>(i)];
   }
   for (std::size_t k = 0; k < level.pairs.size(); ++k) {
@@ -315,7 +323,8 @@ void AggregationMultigrid::add(Index i, Index j, const Mat3& block) {
     m_recorded_strength.push_back(block.norm());
     return;
   }
-  if (m_cursor >= m_plan0.size()) fail("multigrid: the forces passed more pair blocks than when the hierarchy was built");
+  if (m_cursor >= m_plan0.size())
+    fail("multigrid: the forces passed more pair blocks than when the hierarchy was built");
   add_to_level1(m_plan0[m_cursor++], block);
 }
 
@@ -361,7 +370,8 @@ void AggregationMultigrid::plan_level1(const VectorXd& unknown) {
   raw.reserve(m_recorded_pairs.size());
   raw_strength.reserve(m_recorded_pairs.size());
   for (std::size_t k = 0; k < m_recorded_pairs.size(); ++k) {
-    const Index a = local[static_cast<std::size_t>(m_recorded_pairs[k][0])], b = local[static_cast<std::size_t>(m_recorded_pairs[k][1])];
+    const Index a = local[static_cast<std::size_t>(m_recorded_pairs[k][0])],
+                b = local[static_cast<std::size_t>(m_recorded_pairs[k][1])];
     if (a < 0 || b < 0 || a == b) continue;
     raw.push_back({std::min(a, b), std::max(a, b)});
     raw_strength.push_back(m_recorded_strength[k]);
@@ -376,7 +386,8 @@ void AggregationMultigrid::plan_level1(const VectorXd& unknown) {
   Index n1 = aggregate(n0, pairs0, strength0, agg_local);
   m_agg0.assign(static_cast<std::size_t>(n), -1);
   for (Index i = 0; i < n; ++i)
-    if (local[static_cast<std::size_t>(i)] >= 0) m_agg0[static_cast<std::size_t>(i)] = agg_local[static_cast<std::size_t>(local[static_cast<std::size_t>(i)])];
+    if (local[static_cast<std::size_t>(i)] >= 0)
+      m_agg0[static_cast<std::size_t>(i)] = agg_local[static_cast<std::size_t>(local[static_cast<std::size_t>(i)])];
   m_members0.build(m_agg0, n1);
 
   // Level 1 and its plan from the recorded pairs (in particle numbering, -1 off the unknowns).
@@ -403,7 +414,8 @@ void AggregationMultigrid::build_coarser_levels() {
     const int l = static_cast<int>(m_levels.size()) - 1;
     Level& fine = m_levels[static_cast<std::size_t>(l)];
     std::vector<double> strength(fine.pairs.size());
-    for (std::size_t k = 0; k < fine.pairs.size(); ++k) strength[k] = block_at(fine.pair_block, static_cast<Index>(k)).norm();
+    for (std::size_t k = 0; k < fine.pairs.size(); ++k)
+      strength[k] = block_at(fine.pair_block, static_cast<Index>(k)).norm();
     std::vector<Index> agg;
     const Index coarse_n = aggregate(fine.n, fine.pairs, strength, agg);
     if (coarse_n * 5 > fine.n * 4) break;  // coarsening stalled (weakly coupled nodes): stop here
@@ -472,7 +484,8 @@ void AggregationMultigrid::end() {
     m_dense.block<3, 3>(3 * j, 3 * i) += block.transpose();
   }
   m_coarsest.compute(m_dense);
-  if (m_coarsest.info() != Eigen::Success) fail("multigrid: the coarsest operator (", last.n, " nodes) is not positive definite");
+  if (m_coarsest.info() != Eigen::Success)
+    fail("multigrid: the coarsest operator (", last.n, " nodes) is not positive definite");
 }
 
 void AggregationMultigrid::matvec(const Level& level, const Vectors3& x, Vectors3& y) const {
@@ -495,7 +508,8 @@ void AggregationMultigrid::matvec(const Level& level, const Vectors3& x, Vectors
         y1 += (B[1] * xj[0] + B[4] * xj[1]) + B[7] * xj[2];
         y2 += (B[2] * xj[0] + B[5] * xj[1]) + B[8] * xj[2];
       }
-      for (Index e = mid; e < level.row_offset[static_cast<std::size_t>(i) + 1]; ++e) {  // S_ij^T x_j: rows of S_ij^T are B's columns
+      for (Index e = mid; e < level.row_offset[static_cast<std::size_t>(i) + 1];
+           ++e) {  // S_ij^T x_j: rows of S_ij^T are B's columns
         const double* B = pb + 9 * level.row_pair[static_cast<std::size_t>(e)];
         const double* xj = px + 3 * level.row_col[static_cast<std::size_t>(e)];
         y0 += (B[0] * xj[0] + B[1] * xj[1]) + B[2] * xj[2];
@@ -538,7 +552,9 @@ void jacobi(Index n, double omega, const Blocks& inverse, const Vectors3& b, Vec
 
 /// t = b - t, over n nodes.
 void residual_in_place(Index n, const Vectors3& b, Vectors3& t) {
-  parallel::for_ranges(n, [&](Index i0, Index i1) { t.middleCols(i0, i1 - i0) = b.middleCols(i0, i1 - i0) - t.middleCols(i0, i1 - i0); });
+  parallel::for_ranges(n, [&](Index i0, Index i1) {
+    t.middleCols(i0, i1 - i0) = b.middleCols(i0, i1 - i0) - t.middleCols(i0, i1 - i0);
+  });
 }
 
 }  // namespace

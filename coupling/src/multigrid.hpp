@@ -108,7 +108,7 @@ class AggregationMultigrid final : public PairBlockSink {
  private:
   struct Level {
     Index n = 0;
-    Blocks diag, inverse;  // 9 x n
+    Blocks diag, inverse;                     // 9 x n
     std::vector<std::array<Index, 2>> pairs;  // i < j
     Blocks pair_block;                        // 9 x pairs: S_ij for i < j
     // Matvec rows: row i's entries (column, pair) are [row_offset[i], row_mid[i]) with the pair's block
@@ -119,8 +119,8 @@ class AggregationMultigrid final : public PairBlockSink {
     std::vector<Index> agg;
     Members members;  // agg's inverse
     std::vector<Index> pair_plan;
-    Gather gather;  // pair_plan's, for the next level
-    Vectors3 x, b, t;  // solution, right-hand side, scratch (3 x n)
+    Gather gather;       // pair_plan's, for the next level
+    Vectors3 x, b, t;    // solution, right-hand side, scratch (3 x n)
     double omega = 0.5;  // Jacobi damping of the smoother (estimate_omegas)
   };
 
@@ -153,18 +153,18 @@ class AggregationMultigrid final : public PairBlockSink {
   bool m_awaiting_level1 = false;  // level 1 planned; its blocks (the second pass) choose the rest
   double m_scale = 0.0;
   Index m_particles = 0;
-  std::vector<Index> m_agg0;       // particle -> level-1 node, -1 off the unknowns
+  std::vector<Index> m_agg0;  // particle -> level-1 node, -1 off the unknowns
   Members m_members0;
-  std::vector<Index> m_plan0;      // per pair the forces pass: plan code on level 1
-  Gather m_gather0;                // m_plan0's (built with the hierarchy)
+  std::vector<Index> m_plan0;        // per pair the forces pass: plan code on level 1
+  Gather m_gather0;                  // m_plan0's (built with the hierarchy)
   std::vector<Index> m_source_base;  // gather(): first block of each source (scratch)
   std::size_t m_cursor = 0;
   std::vector<std::array<Index, 2>> m_recorded_pairs;  // first update only
   std::vector<double> m_recorded_strength;             // each recorded block's Frobenius norm
-  VectorXd m_unknown0;             // the first update's unknown rows (for the build)
-  std::vector<Level> m_levels;     // levels 1 .. L-1
-  Eigen::MatrixXd m_dense;         // the coarsest level, assembled
-  Eigen::LLT<Eigen::MatrixXd> m_coarsest;  // its storage is sized by the first compute() (in the build)
+  VectorXd m_unknown0;                                 // the first update's unknown rows (for the build)
+  std::vector<Level> m_levels;                         // levels 1 .. L-1
+  Eigen::MatrixXd m_dense;                             // the coarsest level, assembled
+  Eigen::LLT<Eigen::MatrixXd> m_coarsest;              // its storage is sized by the first compute() (in the build)
   Eigen::VectorXd m_dense_rhs;
 };
 

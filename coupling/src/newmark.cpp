@@ -94,8 +94,8 @@ void Newmark::save_state(const StepModel& s) {
   auto& bodies = s.bodies;
   for (Index b = 0; b < m_unknowns.r; ++b)
     if (!(bodies.force.col(b).allFinite() && bodies.torque.col(b).allFinite()))
-      fail("rigid body ", b, ": applied force (", bodies.force.col(b).transpose(), ") or torque (", bodies.torque.col(b).transpose(),
-           ") is not finite");
+      fail("rigid body ", b, ": applied force (", bodies.force.col(b).transpose(), ") or torque (",
+           bodies.torque.col(b).transpose(), ") is not finite");
   m_body_x_n = bodies.x;
   m_body_v_n = bodies.v;
   m_body_w_n = bodies.w;
@@ -168,7 +168,8 @@ GeneralizedVector* Newmark::choose_step1_guess(const StepModel& s, double dt, bo
     const double ratio = dt / m_last_dt;
     double change = 0.0;
     for (Index i = 0; i < u.n; ++i) {
-      const Vec3 d = u.dynamic_mask[i] > 0.0 ? Vec3(ratio * (m_v_n.col(i) - m_last_half.particles.col(i))) : Vec3::Zero();
+      const Vec3 d =
+          u.dynamic_mask[i] > 0.0 ? Vec3(ratio * (m_v_n.col(i) - m_last_half.particles.col(i))) : Vec3::Zero();
       m_guess.particles.col(i) = d;
       change = std::max(change, d.cwiseAbs().maxCoeff());
     }
@@ -201,7 +202,8 @@ GeneralizedVector* Newmark::choose_step1_guess(const StepModel& s, double dt, bo
   // rigid translation), so solve() takes it when it is exact; far off where they are stiff, where
   // v^n is kept.
   for (Index i = 0; i < u.n; ++i)
-    m_guess.particles.col(i) = u.dynamic_mask[i] > 0.0 ? Vec3(m_c.particles.col(i) / u.dof_mass[i]) : Vec3(m_v_n.col(i));
+    m_guess.particles.col(i) =
+        u.dynamic_mask[i] > 0.0 ? Vec3(m_c.particles.col(i) / u.dof_mass[i]) : Vec3(m_v_n.col(i));
   for (Index b = 0; b < u.r; ++b) {
     if (u.dynamic_body[b]) {
       m_guess.rigid.col(b).head<3>() = m_c.rigid.col(b).head<3>() / s.bodies.mass[b];
@@ -278,7 +280,8 @@ void Newmark::advance_positions(const StepModel& s, double dt) {
 void Newmark::move_positions(const StepModel& s, double tau) {
   auto& p = s.particles;
   for (Index i = 0; i < m_unknowns.n; ++i)
-    if (is_dynamic(p.kind[i]) || p.kind[i] == ParticleKind::kinematic) p.x.col(i) = m_x_n.col(i) + tau * m_v_half.col(i);
+    if (is_dynamic(p.kind[i]) || p.kind[i] == ParticleKind::kinematic)
+      p.x.col(i) = m_x_n.col(i) + tau * m_v_half.col(i);
   auto& bodies = s.bodies;
   const bool gyroscopic = s.settings.gyroscopic_correction;
   for (Index b = 0; b < m_unknowns.r; ++b) {
@@ -467,9 +470,11 @@ Vec3 Newmark::compute_forces(const StepModel& s, const Vectors3& x_springs, bool
   return mapped_total;
 }
 
-void Newmark::build_rhs(const StepModel& s, double h, const Vectors3& v_start, const Vectors3& body_v, const Vectors3& body_L) {
+void Newmark::build_rhs(const StepModel& s, double h, const Vectors3& v_start, const Vectors3& body_v,
+                        const Vectors3& body_L) {
   const Unknowns& u = m_unknowns;
-  for (Index i = 0; i < u.n; ++i) m_c.particles.col(i) = u.dof_mass[i] * v_start.col(i) + (h * u.dynamic_mask[i]) * m_f.col(i);
+  for (Index i = 0; i < u.n; ++i)
+    m_c.particles.col(i) = u.dof_mass[i] * v_start.col(i) + (h * u.dynamic_mask[i]) * m_f.col(i);
   for (Index b = 0; b < u.r; ++b) {
     if (!u.dynamic_body[b]) {
       m_c.rigid.col(b).setZero();
@@ -498,23 +503,26 @@ SolveResult Newmark::solve(const StepModel& s, const SolveCoefficients& k, bool 
     m_preconditioner.build(s, m_body_I, k, jacobi);
     m_preconditioner_key = {k, jacobi};
   }
-  return m_cg.solve(m_system, m_c, m_y, settings.cg_tolerance, settings.cg_max_iterations, linear_solve, alternative, rule,
-                    m_step_count);
+  return m_cg.solve(m_system, m_c, m_y, settings.cg_tolerance, settings.cg_max_iterations, linear_solve, alternative,
+                    rule, m_step_count);
 }
 
 void Newmark::check_constraint(const StepModel& s, const CollisionConstraint& c, std::string_view source) const {
-  if (c.size < 1 || c.size > 4) fail("collision source '", source, "': a constraint has ", c.size, " particles (1 to 4)");
+  if (c.size < 1 || c.size > 4)
+    fail("collision source '", source, "': a constraint has ", c.size, " particles (1 to 4)");
   if (!(c.normal.allFinite() && std::abs(c.normal.norm() - 1.0) < 1e-6 && std::isfinite(c.normal_velocity)))
-    fail("collision source '", source, "': a constraint's normal (", c.normal.transpose(), ") is not a unit vector or its velocity ",
-         c.normal_velocity, " is not finite");
+    fail("collision source '", source, "': a constraint's normal (", c.normal.transpose(),
+         ") is not a unit vector or its velocity ", c.normal_velocity, " is not finite");
   for (int a = 0; a < c.size; ++a) {
     const Index i = c.particles[static_cast<std::size_t>(a)];
     if (i < 0 || i >= m_unknowns.n || !is_dynamic(s.particles.kind[i]))
-      fail("collision source '", source, "': constraint on particle ", i, ", which is not a free or soft-spring particle");
+      fail("collision source '", source, "': constraint on particle ", i,
+           ", which is not a free or soft-spring particle");
     if (!std::isfinite(c.weights[static_cast<std::size_t>(a)]))
       fail("collision source '", source, "': constraint on particle ", i, " has a non-finite weight");
     for (int b = 0; b < a; ++b)
-      if (c.particles[static_cast<std::size_t>(b)] == i) fail("collision source '", source, "': particle ", i, " appears twice in a constraint");
+      if (c.particles[static_cast<std::size_t>(b)] == i)
+        fail("collision source '", source, "': particle ", i, " appears twice in a constraint");
   }
 }
 
@@ -522,13 +530,16 @@ void Newmark::check_finite(const StepModel& s, const char* phase) const {
   const auto& p = s.particles;
   for (Index i = 0; i < m_unknowns.n; ++i) {
     if (!all_finite(p.x.col(i)))
-      fail("Newmark step ", m_step_count, ", ", phase, ": particle ", i, " has a non-finite position (", p.x.col(i).transpose(), ")");
+      fail("Newmark step ", m_step_count, ", ", phase, ": particle ", i, " has a non-finite position (",
+           p.x.col(i).transpose(), ")");
     if (!all_finite(p.v.col(i)))
-      fail("Newmark step ", m_step_count, ", ", phase, ": particle ", i, " has a non-finite velocity (", p.v.col(i).transpose(), ")");
+      fail("Newmark step ", m_step_count, ", ", phase, ": particle ", i, " has a non-finite velocity (",
+           p.v.col(i).transpose(), ")");
   }
   const auto& bodies = s.bodies;
   for (Index b = 0; b < m_unknowns.r; ++b)
-    if (!all_finite(bodies.x.col(b)) || !all_finite(bodies.v.col(b)) || !all_finite(bodies.w.col(b)) || !std::isfinite(bodies.q[b].norm()))
+    if (!all_finite(bodies.x.col(b)) || !all_finite(bodies.v.col(b)) || !all_finite(bodies.w.col(b)) ||
+        !std::isfinite(bodies.q[b].norm()))
       fail("Newmark step ", m_step_count, ", ", phase, ": rigid body ", b, " has a non-finite state");
 }
 

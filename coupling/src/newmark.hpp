@@ -36,12 +36,12 @@ class Newmark {
   void process_collisions(const StepModel& s, double dt);                         // 3
   void backward_euler_velocity(const StepModel& s, double dt, StepStats& stats);  // 4
   void extrapolate_velocity(const StepModel& s);                                  // 5
-  void newton_iteration(const StepModel& s, double dt, StepStats& stats);        // after 1 (StepSettings)
+  void newton_iteration(const StepModel& s, double dt, StepStats& stats);         // after 1 (StepSettings)
 
   /// Step 1's initial guesses: v^n in m_y and, when one is to be tried, the other in m_guess (see
   /// the comment in the .cpp). Returns the alternative to pass to the solve, or null.
   GeneralizedVector* choose_step1_guess(const StepModel& s, double dt, bool& trial);
-  void keep_half_velocity(const StepModel& s);  // step 1's answer in m_y -> m_v_half, m_twist_half, v, w
+  void keep_half_velocity(const StepModel& s);          // step 1's answer in m_y -> m_v_half, m_twist_half, v, w
   void move_positions(const StepModel& s, double tau);  // x^n + tau v~^{n+1/2}, frames likewise (velocities kept)
   void restore_positions(const StepModel& s);           // back to x^n, exactly
 

@@ -20,7 +20,8 @@ void Preconditioner::reset(const Unknowns& unknowns) {
 // blocks passed to their parents through W^T W (a 6x6 block per rigid body). The 3x3 blocks matter
 // for cloth: an edge spring is stiff along its direction only, so a node's block is stiff in the
 // cloth's plane and soft across it, which a scalar diagonal cannot express.
-void Preconditioner::build(const StepModel& model, const std::vector<Mat3>& body_I, const SolveCoefficients& k, bool jacobi) {
+void Preconditioner::build(const StepModel& model, const std::vector<Mat3>& body_I, const SolveCoefficients& k,
+                           bool jacobi) {
   const Unknowns& u = *m_unknowns;
   const double h = k.h;
   m_diag_blocks.setZero();
@@ -88,7 +89,8 @@ void Preconditioner::build_multigrid(const StepModel& model, double h, double be
   auto pass = [&] {
     if (!m_multigrid.gather(m_pair_sources))
       for (const auto& f : model.forces)
-        if (const ImplicitBlocks* blocks = f->implicit_blocks()) blocks->visit_pair_blocks(implicit_b(*f, beta_el), m_multigrid);
+        if (const ImplicitBlocks* blocks = f->implicit_blocks())
+          blocks->visit_pair_blocks(implicit_b(*f, beta_el), m_multigrid);
     m_multigrid.end();
   };
   pass();

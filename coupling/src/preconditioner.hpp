@@ -27,12 +27,12 @@ class Preconditioner {
 
   const Unknowns* m_unknowns = nullptr;
   std::vector<Mat6> m_body_preconditioner;
-  VectorXd m_diag;                // scalar diagonal of forces without blocks
-  DiagonalBlocks m_diag_blocks;     // 3x3 diagonal blocks, column-major
-  DiagonalBlocks m_inverse_blocks;  // their inverses (with mass), 0 off the unknowns
-  AggregationMultigrid m_multigrid;  // StepSettings::multigrid
+  VectorXd m_diag;                                                    // scalar diagonal of forces without blocks
+  DiagonalBlocks m_diag_blocks;                                       // 3x3 diagonal blocks, column-major
+  DiagonalBlocks m_inverse_blocks;                                    // their inverses (with mass), 0 off the unknowns
+  AggregationMultigrid m_multigrid;                                   // StepSettings::multigrid
   std::vector<AggregationMultigrid::PairBlockSource> m_pair_sources;  // build's scratch
-  bool m_use_multigrid = false;       // this solve preconditions with the multigrid
+  bool m_use_multigrid = false;                                       // this solve preconditions with the multigrid
 };
 
 /// The b a force's implicit terms are taken at: beta_el for elastic forces with a definite

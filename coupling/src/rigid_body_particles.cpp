@@ -26,7 +26,8 @@ Index add_rigid_body(RigidBodyParticles& bodies, const RigidBodySettings& s) {
   if (!std::isfinite(s.q.norm()) || std::abs(s.q.norm() - 1.0) > 1e-6)
     fail("rigid body ", b, ": orientation is not a unit quaternion (norm ", s.q.norm(), ")");
   if (!s.kinematic) {
-    if (!(std::isfinite(s.mass) && s.mass > 0.0)) fail("rigid body ", b, ": mass ", s.mass, " must be positive and finite");
+    if (!(std::isfinite(s.mass) && s.mass > 0.0))
+      fail("rigid body ", b, ": mass ", s.mass, " must be positive and finite");
     for (int i = 0; i < 3; ++i)
       if (!(std::isfinite(s.inertia[i]) && s.inertia[i] > 0.0))
         fail("rigid body ", b, ": principal inertia ", i, " is ", s.inertia[i], ", must be positive and finite");

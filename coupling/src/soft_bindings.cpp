@@ -39,8 +39,8 @@ void SoftBindings::gather_synchronized(Eigen::Matrix<double, 9, Eigen::Dynamic>&
 
 // Parent accelerations a = M^-1 F (zero for kinematic parents, 1/inf = 0), read at the target through
 // its binding (HardBindings::point_acceleration).
-Vec3 SoftBindings::map_forces(const Particles& p, const RigidBodyParticles& bodies, const HardBindings& hard, Vectors3& f,
-                              const Vectors6& wrench) const {
+Vec3 SoftBindings::map_forces(const Particles& p, const RigidBodyParticles& bodies, const HardBindings& hard,
+                              Vectors3& f, const Vectors6& wrench) const {
   Vec3 mapped_total = Vec3::Zero();
   for (Index k = 0; k < size(); ++k) {
     if (coupling[k] != SoftCoupling::spring) continue;
@@ -54,8 +54,8 @@ Vec3 SoftBindings::map_forces(const Particles& p, const RigidBodyParticles& bodi
 
 // Section 3.1: drift dx = x_s - x_e, dv = v_s - v_e goes to the target's parents through its binding
 // (HardBindings::push_drift), or directly to a free target.
-void SoftBindings::push_drift(Particles& p, RigidBodyParticles& bodies, HardBindings& hard, const VectorXd& effective_mass,
-                              Vectors3& L_n) const {
+void SoftBindings::push_drift(Particles& p, RigidBodyParticles& bodies, HardBindings& hard,
+                              const VectorXd& effective_mass, Vectors3& L_n) const {
   for (Index k = 0; k < size(); ++k) {
     if (coupling[k] != SoftCoupling::synchronized) continue;
     const Index sp = particle[k], t = target[k];

@@ -37,9 +37,9 @@ struct SolveCoefficients {
 /// solves find (dofs.hpp), and their masses.
 struct Unknowns {
   Index n = 0, r = 0;
-  VectorXd dof_mass;      ///< mass of dynamic rows, 0 elsewhere
-  VectorXd dynamic_mask;  ///< 1 on dynamic rows, 0 elsewhere
-  VectorXd dof_mass3;     ///< dof_mass per coordinate (3N)
+  VectorXd dof_mass;                       ///< mass of dynamic rows, 0 elsewhere
+  VectorXd dynamic_mask;                   ///< 1 on dynamic rows, 0 elsewhere
+  VectorXd dof_mass3;                      ///< dof_mass per coordinate (3N)
   std::vector<std::uint8_t> dynamic_body;  ///< 1 on dynamic bodies, 0 on kinematic ones
 
   void build(const Particles& p, const RigidBodyParticles& bodies) {

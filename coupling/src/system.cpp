@@ -112,21 +112,25 @@ void System::remove_particles(std::span<const Index> particles) {
     m_particles.v.col(i).setZero();
   }
   for (Index k = m_soft.size() - 1; k >= 0; --k)
-    if (removed[static_cast<std::size_t>(m_soft.particle[k])] || removed[static_cast<std::size_t>(m_soft.target[k])]) remove_soft_binding(k);
+    if (removed[static_cast<std::size_t>(m_soft.particle[k])] || removed[static_cast<std::size_t>(m_soft.target[k])])
+      remove_soft_binding(k);
   for (Index s = 0; s < m_springs.size(); ++s)
-    if (!m_springs.removed(s) && (removed[static_cast<std::size_t>(m_springs.a(s))] || removed[static_cast<std::size_t>(m_springs.b(s))]))
+    if (!m_springs.removed(s) &&
+        (removed[static_cast<std::size_t>(m_springs.a(s))] || removed[static_cast<std::size_t>(m_springs.b(s))]))
       m_springs.remove(s);
   auto& triangles = m_geometry.triangles;
   triangles.erase(std::remove_if(triangles.begin(), triangles.end(),
                                  [&](const std::array<Index, 3>& t) {
-                                   return removed[static_cast<std::size_t>(t[0])] || removed[static_cast<std::size_t>(t[1])] ||
+                                   return removed[static_cast<std::size_t>(t[0])] ||
+                                          removed[static_cast<std::size_t>(t[1])] ||
                                           removed[static_cast<std::size_t>(t[2])];
                                  }),
                   triangles.end());
   auto& segments = m_geometry.segments;
   segments.erase(std::remove_if(segments.begin(), segments.end(),
                                 [&](const std::array<Index, 2>& e) {
-                                  return removed[static_cast<std::size_t>(e[0])] || removed[static_cast<std::size_t>(e[1])];
+                                  return removed[static_cast<std::size_t>(e[0])] ||
+                                         removed[static_cast<std::size_t>(e[1])];
                                 }),
                  segments.end());
   note_topology_change();
@@ -146,7 +150,8 @@ void System::remove_elements_touching(std::span<const Index> particles) {
 void System::remove_elements_of(std::span<const std::uint8_t> removed) {
   for (const auto& f : m_forces)
     if (!f->can_remove_elements())
-      fail(f->name(), ": cannot remove elements (it does not implement Force::remove_elements_touching); nothing was removed");
+      fail(f->name(),
+           ": cannot remove elements (it does not implement Force::remove_elements_touching); nothing was removed");
   for (const auto& f : m_forces) f->remove_elements_touching(removed);
   m_force_stable_dt.clear();
 }
@@ -163,7 +168,8 @@ void System::remove_soft_binding(Index soft) {
 void System::remove_binding_spring(Index spring) {
   if (spring < 0 || spring >= m_springs.size()) fail("binding spring ", spring, " does not exist");
   for (Index k = 0; k < m_soft.size(); ++k)
-    if (m_soft.spring[k] == spring) fail("binding spring ", spring, " belongs to soft binding ", k, "; remove that instead");
+    if (m_soft.spring[k] == spring)
+      fail("binding spring ", spring, " belongs to soft binding ", k, "; remove that instead");
   m_springs.remove(spring);
   note_topology_change();
 }
@@ -207,7 +213,8 @@ Index System::bind_rigid(Index particle, Index body, const Vec3& r0) {
 }
 
 Index System::bind_rigid_here(Index particle, Index body) {
-  if (particle < 0 || particle >= m_particles.size()) fail("binding ", m_hard.size(), ": particle ", particle, " does not exist");
+  if (particle < 0 || particle >= m_particles.size())
+    fail("binding ", m_hard.size(), ": particle ", particle, " does not exist");
   if (body < 0 || body >= m_bodies.size()) fail("binding ", m_hard.size(), ": rigid body ", body, " does not exist");
   const Vec3 r0 = m_bodies.q[body].conjugate() * (m_particles.x.col(particle) - m_bodies.x.col(body));
   return bind_rigid(particle, body, r0);
@@ -220,7 +227,8 @@ Index System::add_embedded_point(std::span<const Index> parents, std::span<const
     fail("embedded point ", point, ": ", parents.size(), " parents but ", weights.size(), " weights");
   Vec3 x = Vec3::Zero(), v = Vec3::Zero();
   for (std::size_t i = 0; i < parents.size(); ++i) {
-    if (parents[i] < 0 || parents[i] >= point) fail("embedded point ", point, ": parent ", parents[i], " does not exist");
+    if (parents[i] < 0 || parents[i] >= point)
+      fail("embedded point ", point, ": parent ", parents[i], " does not exist");
     x += weights[i] * m_particles.x.col(parents[i]);
     v += weights[i] * m_particles.v.col(parents[i]);
   }
@@ -232,7 +240,8 @@ Index System::add_embedded_point(std::span<const Index> parents, std::span<const
 Index System::add_soft_binding(const SoftBindingSettings& s) {
   note_topology_change();
   const Index id = m_soft.size();
-  if (!(std::isfinite(s.mass) && s.mass >= 0.0)) fail("soft binding ", id, ": mass ", s.mass, " must be non-negative and finite");
+  if (!(std::isfinite(s.mass) && s.mass >= 0.0))
+    fail("soft binding ", id, ": mass ", s.mass, " must be non-negative and finite");
   if (s.particle == s.target) fail("soft binding ", id, ": particle ", s.particle, " is its own target");
   Index spring = -1;
   if (s.coupling == SoftCoupling::spring) {
@@ -256,12 +265,15 @@ Index System::add_binding_spring(const BindingSpringSettings& settings) {
 }
 
 void System::set_binding_spring_ends(Index spring, Index a, Index b) {
-  if (spring < 0 || spring >= m_springs.size()) fail("binding spring ", spring, " does not exist (there are ", m_springs.size(), ")");
+  if (spring < 0 || spring >= m_springs.size())
+    fail("binding spring ", spring, " does not exist (there are ", m_springs.size(), ")");
   const Index n = m_particles.size();
-  if (a < 0 || a >= n || b < 0 || b >= n) fail("binding spring ", spring, ": ends ", a, " and ", b, " must be particles (0 to ", n - 1, ")");
+  if (a < 0 || a >= n || b < 0 || b >= n)
+    fail("binding spring ", spring, ": ends ", a, " and ", b, " must be particles (0 to ", n - 1, ")");
   if (a == b) fail("binding spring ", spring, ": both ends are particle ", a);
   if (m_finalized && !(m_inverse_effective_mass[a] + m_inverse_effective_mass[b] > 0.0))
-    fail("binding spring ", spring, ": ends ", a, " and ", b, " both have infinite mass (kinematic or on kinematic parents)");
+    fail("binding spring ", spring, ": ends ", a, " and ", b,
+         " both have infinite mass (kinematic or on kinematic parents)");
   m_springs.set_ends(spring, a, b);
   if (m_finalized) m_springs.set_damping_from_masses(m_inverse_effective_mass);
 }
@@ -276,7 +288,8 @@ void System::add_collision_surface(std::span<const std::array<Index, 3>> triangl
   const Index n = m_particles.size();
   for (std::size_t t = 0; t < triangles.size(); ++t)
     for (Index i : triangles[t])
-      if (i < 0 || i >= n) fail("collision surface: triangle ", t, " has vertex ", i, ", which is not a particle (there are ", n, ")");
+      if (i < 0 || i >= n)
+        fail("collision surface: triangle ", t, " has vertex ", i, ", which is not a particle (there are ", n, ")");
   m_geometry.triangles.insert(m_geometry.triangles.end(), triangles.begin(), triangles.end());
   // Each edge once, as (lower, higher), in a fixed (sorted) order.
   std::vector<std::array<Index, 2>>& segments = m_geometry.segments;
@@ -290,7 +303,8 @@ void System::add_collision_surface(std::span<const std::array<Index, 3>> triangl
 }
 
 void System::set_collision_filter(Index particle, std::uint32_t group, std::uint32_t mask) {
-  if (particle < 0 || particle >= m_particles.size()) fail("set_collision_filter: particle ", particle, " does not exist");
+  if (particle < 0 || particle >= m_particles.size())
+    fail("set_collision_filter: particle ", particle, " does not exist");
   m_geometry.group[static_cast<std::size_t>(particle)] = group;
   m_geometry.mask[static_cast<std::size_t>(particle)] = mask;
 }
@@ -299,9 +313,11 @@ void System::set_joint_rows(std::vector<JointRow> rows) {
   const Index r = m_bodies.size();
   for (std::size_t i = 0; i < rows.size(); ++i) {
     const JointRow& row = rows[i];
-    if (row.body_a < 0 || row.body_a >= r) fail("joint row ", i, ": body_a = ", row.body_a, " is not a rigid body (there are ", r, ")");
+    if (row.body_a < 0 || row.body_a >= r)
+      fail("joint row ", i, ": body_a = ", row.body_a, " is not a rigid body (there are ", r, ")");
     if (row.body_b < -1 || row.body_b >= r)
-      fail("joint row ", i, ": body_b = ", row.body_b, " is neither -1 (the fixed world) nor a rigid body (there are ", r, ")");
+      fail("joint row ", i, ": body_b = ", row.body_b, " is neither -1 (the fixed world) nor a rigid body (there are ",
+           r, ")");
     if (row.body_a == row.body_b) fail("joint row ", i, ": both ends are rigid body ", row.body_a);
     if (!(row.j_a.allFinite() && row.j_b.allFinite() && std::isfinite(row.target)))
       fail("joint row ", i, ": Jacobian or target is not finite");
@@ -341,7 +357,8 @@ void System::finalize() {
     const Index p = m_soft.particle[s], t = m_soft.target[s];
     if (p < 0 || p >= n) fail("soft binding ", s, ": particle ", p, " out of range [0, ", n, ")");
     if (t < 0 || t >= n) fail("soft binding ", s, ": target ", t, " out of range [0, ", n, ")");
-    if (kind[p] != ParticleKind::free) fail("soft binding ", s, ": particle ", p, " is already kinematic, bound or removed");
+    if (kind[p] != ParticleKind::free)
+      fail("soft binding ", s, ": particle ", p, " is already kinematic, bound or removed");
     if (kind[t] == ParticleKind::removed) fail("soft binding ", s, ": target ", t, " was removed");
     if (is_soft[p]) fail("soft binding ", s, ": particle ", p, " is soft-bound twice");
     is_soft[p] = 1;
@@ -367,7 +384,8 @@ void System::finalize() {
     if (kind[i] == ParticleKind::kinematic) m_particles.mass[i] = kInfinity;
     if (kind[i] == ParticleKind::free && !(m_particles.mass[i] > 0.0))
       fail("particle ", i, " has mass ", m_particles.mass[i],
-           " after binding masses were distributed: a free particle needs positive mass (bind it, make it kinematic, or give it mass)");
+           " after binding masses were distributed: a free particle needs positive mass (bind it, make it kinematic, "
+           "or give it mass)");
   }
   compute_effective_masses();
   m_springs.set_damping_from_masses(m_inverse_effective_mass);
@@ -390,7 +408,8 @@ void System::compute_effective_masses() {
     double m = m_soft.mass_override[s];
     if (m == 0.0) {
       if (!(m_inverse_effective_mass[t] > 0.0))
-        fail("soft binding ", s, ": target ", t, " has infinite effective mass (kinematic); give the soft particle a mass");
+        fail("soft binding ", s, ": target ", t,
+             " has infinite effective mass (kinematic); give the soft particle a mass");
       m = 1.0 / m_inverse_effective_mass[t];
     }
     m_particles.mass[p] = m;
@@ -430,8 +449,10 @@ StepStats System::step(double dt) {
   validate(m_step_settings);
   finalize();
   set_thread_count(m_step_settings.threads);
-  const StepModel model{m_particles, m_bodies, m_hard,         m_soft,          m_springs,        m_forces,
-                        m_step_settings, m_settings.gravity, m_joint_rows, m_effective_mass, m_collision_sources, m_geometry, m_time};
+  const StepModel model{
+      m_particles,     m_bodies,           m_hard,       m_soft,           m_springs,           m_forces,
+      m_step_settings, m_settings.gravity, m_joint_rows, m_effective_mass, m_collision_sources, m_geometry,
+      m_time};
   StepStats stats = m_newmark->step(model, dt);
   m_time += dt;
   return stats;
@@ -448,14 +469,16 @@ double System::stable_dt() {
     for (const auto& f : m_forces) m_force_stable_dt.push_back(f->stable_dt(m_effective_mass));
   }
   for (std::size_t k = 0; k < m_forces.size(); ++k) {
-    if (m_step_settings.implicit_elasticity && m_forces[k]->has_definite_differentials()) continue;  // no limit when implicit
+    if (m_step_settings.implicit_elasticity && m_forces[k]->has_definite_differentials())
+      continue;  // no limit when implicit
     dt = std::min(dt, m_force_stable_dt[k]);
   }
   return dt;
 }
 
 StepStats System::advance(double frame_dt) {
-  if (!(std::isfinite(frame_dt) && frame_dt > 0.0)) fail("advance: frame dt ", frame_dt, " must be positive and finite");
+  if (!(std::isfinite(frame_dt) && frame_dt > 0.0))
+    fail("advance: frame dt ", frame_dt, " must be positive and finite");
   validate(m_step_settings);  // before cfl and max_substeps are used below
   const double limit = m_step_settings.cfl * stable_dt();
   const double count = std::ceil(frame_dt / limit);
@@ -503,10 +526,12 @@ double System::kinetic_energy(bool include_soft) const {
   require_finalized("momentum and energy");
   double e = 0.0;
   for (Index i = 0; i < m_particles.size(); ++i)
-    if (counts_for_momentum(m_particles.kind[i], include_soft)) e += 0.5 * m_particles.mass[i] * m_particles.v.col(i).squaredNorm();
+    if (counts_for_momentum(m_particles.kind[i], include_soft))
+      e += 0.5 * m_particles.mass[i] * m_particles.v.col(i).squaredNorm();
   for (Index b = 0; b < m_bodies.size(); ++b)
     if (!m_bodies.kinematic[b])
-      e += 0.5 * m_bodies.mass[b] * m_bodies.v.col(b).squaredNorm() + 0.5 * m_bodies.w.col(b).dot(m_bodies.angular_momentum(b));
+      e += 0.5 * m_bodies.mass[b] * m_bodies.v.col(b).squaredNorm() +
+           0.5 * m_bodies.w.col(b).dot(m_bodies.angular_momentum(b));
   return e;
 }
 

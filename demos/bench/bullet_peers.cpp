@@ -53,7 +53,8 @@ class BulletCurtain : public CurtainRun {
 
   Vectors3 nodes() const override {
     Vectors3 x(3, static_cast<Index>(m_bullet_index.size()));
-    for (std::size_t k = 0; k < m_bullet_index.size(); ++k) x.col(static_cast<Index>(k)) = bullet::to_eigen(node(static_cast<int>(k)).m_x);
+    for (std::size_t k = 0; k < m_bullet_index.size(); ++k)
+      x.col(static_cast<Index>(k)) = bullet::to_eigen(node(static_cast<int>(k)).m_x);
     return x;
   }
 
@@ -108,12 +109,14 @@ class BulletCurtain : public CurtainRun {
     const bool mirrored = n % 2 == 0;
     m_bullet_index.resize(static_cast<std::size_t>(n) * n);
     for (int j = 0; j < n; ++j)
-      for (int i = 0; i < n; ++i) m_bullet_index[static_cast<std::size_t>(j * n + i)] = j * n + (mirrored ? n - 1 - i : i);
+      for (int i = 0; i < n; ++i)
+        m_bullet_index[static_cast<std::size_t>(j * n + i)] = j * n + (mirrored ? n - 1 - i : i);
     const int left = mirrored ? n - 1 : 0, right = mirrored ? 0 : n - 1;
     m_cloth.reset(btSoftBodyHelpers::CreatePatch(info, bullet::to_bullet(node_rest_position(m_spec, left, 0)),
                                                  bullet::to_bullet(node_rest_position(m_spec, right, 0)),
                                                  bullet::to_bullet(node_rest_position(m_spec, left, n - 1)),
-                                                 bullet::to_bullet(node_rest_position(m_spec, right, n - 1)), n, n, 0, true));
+                                                 bullet::to_bullet(node_rest_position(m_spec, right, n - 1)), n, n, 0,
+                                                 true));
     // Interpolation rounds differently from node_rest_position: put every node exactly where the spec
     // (and sinew) puts it, then take the links' rest lengths from there.
     const btVector3 v0 = bullet::to_bullet(m_spec.initial_velocity);
@@ -151,8 +154,10 @@ class BulletCurtain : public CurtainRun {
 
 void check(const ClassicSettings& s) {
   if (s.piterations < 1) fail("classic: piterations = ", s.piterations, ", needs at least 1");
-  if (!(s.anchor_hardness > 0 && s.anchor_hardness <= 1)) fail("classic: anchor_hardness = ", s.anchor_hardness, ", must be in (0, 1]");
-  if (!(s.link_stiffness > 0 && s.link_stiffness <= 1)) fail("classic: link_stiffness = ", s.link_stiffness, ", must be in (0, 1]");
+  if (!(s.anchor_hardness > 0 && s.anchor_hardness <= 1))
+    fail("classic: anchor_hardness = ", s.anchor_hardness, ", must be in (0, 1]");
+  if (!(s.link_stiffness > 0 && s.link_stiffness <= 1))
+    fail("classic: link_stiffness = ", s.link_stiffness, ", must be in (0, 1]");
   if (!(s.damping >= 0 && s.damping < 1)) fail("classic: damping = ", s.damping, ", must be in [0, 1)");
 }
 
@@ -164,7 +169,8 @@ class ClassicCurtain final : public BulletCurtain {
     m_dispatcher = std::make_unique<btCollisionDispatcher>(m_configuration.get());
     m_broadphase = std::make_unique<btDbvtBroadphase>();
     m_solver = std::make_unique<btSequentialImpulseConstraintSolver>();
-    auto world = std::make_unique<btSoftRigidDynamicsWorld>(m_dispatcher.get(), m_broadphase.get(), m_solver.get(), m_configuration.get());
+    auto world = std::make_unique<btSoftRigidDynamicsWorld>(m_dispatcher.get(), m_broadphase.get(), m_solver.get(),
+                                                            m_configuration.get());
     const btVector3 g(0, btScalar(-spec.gravity), 0);
     world->setGravity(g);
     world->getWorldInfo().m_gravity = g;  // the soft bodies read gravity from here, not from the world
@@ -203,7 +209,8 @@ class ClassicCurtain final : public BulletCurtain {
 void check(const DeformableSettings& s) {
   if (s.newton_iterations < 1) fail("deformable: newton_iterations = ", s.newton_iterations, ", needs at least 1");
   if (s.cg_max_iterations < 1) fail("deformable: cg_max_iterations = ", s.cg_max_iterations, ", needs at least 1");
-  if (!(std::isfinite(s.cg_tolerance) && s.cg_tolerance >= 0)) fail("deformable: cg_tolerance = ", s.cg_tolerance, ", must be finite and >= 0");
+  if (!(std::isfinite(s.cg_tolerance) && s.cg_tolerance >= 0))
+    fail("deformable: cg_tolerance = ", s.cg_tolerance, ", must be finite and >= 0");
   if (s.solver_iterations < 1) fail("deformable: solver_iterations = ", s.solver_iterations, ", needs at least 1");
 }
 
@@ -230,7 +237,8 @@ class MeasuringDeformableSolver final : public btDeformableBodySolver {
 
 class DeformableCurtain final : public BulletCurtain {
  public:
-  DeformableCurtain(const CurtainSpec& spec, const DeformableSettings& settings) : BulletCurtain(spec), m_settings(settings) {
+  DeformableCurtain(const CurtainSpec& spec, const DeformableSettings& settings)
+      : BulletCurtain(spec), m_settings(settings) {
     check(settings);
     m_configuration = std::make_unique<btSoftBodyRigidBodyCollisionConfiguration>();
     m_dispatcher = std::make_unique<btCollisionDispatcher>(m_configuration.get());
@@ -240,8 +248,8 @@ class DeformableCurtain final : public BulletCurtain {
     m_deformable_solver = std::move(deformable);
     auto solver = std::make_unique<btDeformableMultiBodyConstraintSolver>();
     solver->setDeformableSolver(m_deformable_solver.get());
-    auto world = std::make_unique<btDeformableMultiBodyDynamicsWorld>(m_dispatcher.get(), m_broadphase.get(), solver.get(),
-                                                                       m_configuration.get(), m_deformable_solver.get());
+    auto world = std::make_unique<btDeformableMultiBodyDynamicsWorld>(
+        m_dispatcher.get(), m_broadphase.get(), solver.get(), m_configuration.get(), m_deformable_solver.get());
     m_solver = std::move(solver);
     const btVector3 g(0, btScalar(-spec.gravity), 0);
     world->setGravity(g);
@@ -260,8 +268,8 @@ class DeformableCurtain final : public BulletCurtain {
     // The spec's spring: k along each edge on its length error, damping d on the rate of stretch along
     // the edge (conserve_angular = true projects the damping onto the edge). The patch has no bending
     // links, so the force's bending stiffness is never used.
-    m_forces.push_back(
-        std::make_unique<btDeformableMassSpringForce>(btScalar(spec.stretch_stiffness), btScalar(spec.stretch_damping), true));
+    m_forces.push_back(std::make_unique<btDeformableMassSpringForce>(btScalar(spec.stretch_stiffness),
+                                                                     btScalar(spec.stretch_damping), true));
     deformable_world.addForce(m_cloth.get(), m_forces.back().get());
     m_forces.push_back(std::make_unique<btDeformableGravityForce>(g));
     deformable_world.addForce(m_cloth.get(), m_forces.back().get());

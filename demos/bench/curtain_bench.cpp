@@ -39,7 +39,8 @@ class TickClock final : public btActionInterface {
 // body there and sets its velocity to cover the move over that call's time.
 class KinematicSlide final : public btMotionState {
  public:
-  KinematicSlide(const btTransform& start, double speed, const double* time) : m_start(start), m_speed(speed), m_time(time) {}
+  KinematicSlide(const btTransform& start, double speed, const double* time)
+      : m_start(start), m_speed(speed), m_time(time) {}
   void getWorldTransform(btTransform& pose) const override {
     pose = m_start;
     pose.getOrigin() += btVector3(btScalar(m_speed * *m_time), 0, 0);
@@ -81,7 +82,8 @@ void validate(const CurtainSpec& s) {
   if (!positive(s.ring_radius)) fail("curtain: ring_radius = ", s.ring_radius, " m, must be positive");
   if (!std::isfinite(s.rod_height)) fail("curtain: rod_height = ", s.rod_height, " m, must be finite");
   if (!all_finite(s.initial_velocity)) fail("curtain: initial_velocity is not finite");
-  if (!(std::isfinite(s.gravity) && s.gravity >= 0)) fail("curtain: gravity = ", s.gravity, " m/s^2, must be finite and >= 0");
+  if (!(std::isfinite(s.gravity) && s.gravity >= 0))
+    fail("curtain: gravity = ", s.gravity, " m/s^2, must be finite and >= 0");
   if (!std::isfinite(s.ring_spin)) fail("curtain: ring_spin = ", s.ring_spin, " rad/s, must be finite");
   if (s.ring_spin != 0.0 && s.parent != RingParent::dynamic)
     fail("curtain: ring_spin = ", s.ring_spin, " rad/s needs awake dynamic rings, not ", to_string(s.parent), " ones");
@@ -92,12 +94,14 @@ std::vector<std::pair<int, int>> bound_nodes(const CurtainSpec& spec) {
   validate(spec);
   std::vector<std::pair<int, int>> bound;
   if (spec.bind_all) {
-    for (int i = 0; i < spec.n; ++i) bound.emplace_back(i, round_ratio(static_cast<long long>(i) * (spec.rings - 1), spec.n - 1));
+    for (int i = 0; i < spec.n; ++i)
+      bound.emplace_back(i, round_ratio(static_cast<long long>(i) * (spec.rings - 1), spec.n - 1));
   } else if (spec.rings == 1) {
     bound.emplace_back(round_ratio(spec.n - 1, 2), 0);
   } else {
     // The node nearest ring k; rings <= n keeps these distinct (their spacing is at least one node).
-    for (int k = 0; k < spec.rings; ++k) bound.emplace_back(round_ratio(static_cast<long long>(k) * (spec.n - 1), spec.rings - 1), k);
+    for (int k = 0; k < spec.rings; ++k)
+      bound.emplace_back(round_ratio(static_cast<long long>(k) * (spec.n - 1), spec.rings - 1), k);
   }
   return bound;
 }
@@ -131,12 +135,14 @@ RodAndRings::RodAndRings(btDynamicsWorld& world, const CurtainSpec& spec) : m_wo
   // meets the other's mask.
   constexpr int kCollidesWithNothing = 0;
   const double half_length = 0.5 * spec.size + 2.0 * spec.ring_radius;
-  m_rod_shape = std::make_unique<btCylinderShapeX>(btVector3(btScalar(half_length), btScalar(0.25 * spec.ring_radius), btScalar(0.25 * spec.ring_radius)));
+  m_rod_shape = std::make_unique<btCylinderShapeX>(
+      btVector3(btScalar(half_length), btScalar(0.25 * spec.ring_radius), btScalar(0.25 * spec.ring_radius)));
   m_ring_shape = std::make_unique<btSphereShape>(btScalar(spec.ring_radius));
 
   btTransform rod_pose(btQuaternion::getIdentity(), btVector3(0, btScalar(spec.rod_height), 0));
   m_states.push_back(std::make_unique<btDefaultMotionState>(rod_pose));
-  m_rod = std::make_unique<btRigidBody>(btRigidBody::btRigidBodyConstructionInfo(0, m_states.back().get(), m_rod_shape.get()));
+  m_rod = std::make_unique<btRigidBody>(
+      btRigidBody::btRigidBodyConstructionInfo(0, m_states.back().get(), m_rod_shape.get()));
   m_world->addRigidBody(m_rod.get(), btBroadphaseProxy::StaticFilter, kCollidesWithNothing);
 
   const btVector3 inertia = bullet::to_bullet(ring_inertia(spec));
@@ -150,11 +156,10 @@ RodAndRings::RodAndRings(btDynamicsWorld& world, const CurtainSpec& spec) : m_wo
     const btTransform pose(btQuaternion::getIdentity(), bullet::to_bullet(centre));
     if (spec.parent == RingParent::kinematic)
       m_states.push_back(std::make_unique<KinematicSlide>(pose, spec.kinematic_speed, &m_time));
-    else
-      m_states.push_back(std::make_unique<btDefaultMotionState>(pose));
+    else m_states.push_back(std::make_unique<btDefaultMotionState>(pose));
     const double mass = dynamic ? spec.ring_mass : 0.0;  // Bullet: mass 0 is a static or kinematic body
-    auto ring = std::make_unique<btRigidBody>(
-        btRigidBody::btRigidBodyConstructionInfo(btScalar(mass), m_states.back().get(), m_ring_shape.get(), dynamic ? inertia : btVector3(0, 0, 0)));
+    auto ring = std::make_unique<btRigidBody>(btRigidBody::btRigidBodyConstructionInfo(
+        btScalar(mass), m_states.back().get(), m_ring_shape.get(), dynamic ? inertia : btVector3(0, 0, 0)));
     switch (spec.parent) {
       case RingParent::dynamic:
         ring->setLinearVelocity(bullet::to_bullet(spec.initial_velocity));
@@ -171,10 +176,10 @@ RodAndRings::RodAndRings(btDynamicsWorld& world, const CurtainSpec& spec) : m_wo
         ring->setCollisionFlags(ring->getCollisionFlags() | btCollisionObject::CF_KINEMATIC_OBJECT);
         ring->setActivationState(DISABLE_DEACTIVATION);  // a sleeping kinematic body is not moved
         break;
-      case RingParent::fixed:
-        break;
+      case RingParent::fixed: break;
     }
-    m_world->addRigidBody(ring.get(), dynamic ? btBroadphaseProxy::DefaultFilter : btBroadphaseProxy::StaticFilter, kCollidesWithNothing);
+    m_world->addRigidBody(ring.get(), dynamic ? btBroadphaseProxy::DefaultFilter : btBroadphaseProxy::StaticFilter,
+                          kCollidesWithNothing);
     // Whatever addRigidBody did to the activation state, a sleeping ring starts asleep.
     if (spec.parent == RingParent::sleeping) ring->forceActivationState(ISLAND_SLEEPING);
 
@@ -207,7 +212,9 @@ btRigidBody& RodAndRings::ring(int k) const {
   return *m_rings[static_cast<std::size_t>(k)];
 }
 
-Vec3 RodAndRings::world_point(int k, const Vec3& local) const { return bullet::to_eigen(ring(k).getWorldTransform() * bullet::to_bullet(local)); }
+Vec3 RodAndRings::world_point(int k, const Vec3& local) const {
+  return bullet::to_eigen(ring(k).getWorldTransform() * bullet::to_bullet(local));
+}
 
 double RodAndRings::joint_error() const {
   const double axis_y = m_rod->getWorldTransform().getOrigin().y(), axis_z = m_rod->getWorldTransform().getOrigin().z();
@@ -246,7 +253,8 @@ double RodAndRings::energy(double gravity) const {
 bool RodAndRings::healthy() const {
   for (const auto& ring : m_rings) {
     const btTransform& t = ring->getWorldTransform();
-    if (!all_finite(t.getOrigin()) || !all_finite(ring->getLinearVelocity()) || !all_finite(ring->getAngularVelocity())) return false;
+    if (!all_finite(t.getOrigin()) || !all_finite(ring->getLinearVelocity()) || !all_finite(ring->getAngularVelocity()))
+      return false;
     for (int r = 0; r < 3; ++r)
       if (!all_finite(t.getBasis()[r])) return false;
     if (!(t.getOrigin().length() <= kFarAway)) return false;
@@ -257,7 +265,8 @@ bool RodAndRings::healthy() const {
 AttachmentError attachment_error(const RodAndRings& rings, const Vectors3& x, const std::vector<BoundPivot>& pivots) {
   AttachmentError error;
   for (const BoundPivot& p : pivots) {
-    if (p.node < 0 || p.node >= x.cols()) fail("attachment error: bound node ", p.node, " is outside the ", x.cols(), " nodes given");
+    if (p.node < 0 || p.node >= x.cols())
+      fail("attachment error: bound node ", p.node, " is outside the ", x.cols(), " nodes given");
     const double e = (x.col(p.node) - rings.world_point(p.ring, p.local)).norm();
     error.bound_node = std::isnan(e) ? kInfinity : std::max(error.bound_node, e);  // a NaN must not hide
   }

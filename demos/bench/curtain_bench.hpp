@@ -57,10 +57,10 @@ struct CurtainSpec {
   /// sinew's bending joins the implicit solves with implicit elasticity (ClothMaterial::bending_implicit).
   bool bending_implicit = false;
   int rings = 10;
-  double ring_mass = 0.05;           ///< [kg]
-  double ring_radius = 0.04;         ///< [m] (inertia of a thin ring: m R^2 about its axis)
-  double rod_height = 2.1;           ///< y of the rod axis [m]; the top row hangs ring_radius below it
-  bool bind_all = false;             ///< every top-row node bound (else one per ring)
+  double ring_mass = 0.05;    ///< [kg]
+  double ring_radius = 0.04;  ///< [m] (inertia of a thin ring: m R^2 about its axis)
+  double rod_height = 2.1;    ///< y of the rod axis [m]; the top row hangs ring_radius below it
+  bool bind_all = false;      ///< every top-row node bound (else one per ring)
   RingParent parent = RingParent::dynamic;
   /// Initial angular velocity of every ring about the rod (x) [rad/s], for RingParent::dynamic only: the
   /// spin-up is impulsive, the rings then turn freely on their sliders (the cloth's nodes start with
@@ -71,7 +71,7 @@ struct CurtainSpec {
   /// stepSimulation, and that pose can only follow the time already simulated.
   double kinematic_speed = 0.2;
   Vec3 initial_velocity = Vec3(0.2, 0.0, 1.0);  ///< [m/s], every cloth node and ring
-  double gravity = 9.81;             ///< [m/s^2], along -y
+  double gravity = 9.81;                        ///< [m/s^2], along -y
 };
 
 /// Checks every field of the spec and throws sinew::Error naming the first bad one
@@ -109,9 +109,9 @@ std::vector<BoundPivot> bound_pivots(const CurtainSpec& spec);
 
 /// How far the attachments are from what they should be, now.
 struct AttachmentError {
-  double bound_node = 0.0;       ///< max |x_node - T_ring p_local| over bound nodes [m]
+  double bound_node = 0.0;                   ///< max |x_node - T_ring p_local| over bound nodes [m]
   double bound_node_before_overwrite = 0.0;  ///< the same before a system overwrites anchored nodes (else = bound_node)
-  double ring_joint = 0.0;       ///< max distance of a ring's centre from the rod axis [m]
+  double ring_joint = 0.0;                   ///< max distance of a ring's centre from the rod axis [m]
 };
 
 /// One system running the benchmark curtain.
@@ -158,11 +158,10 @@ namespace sinew::bench {
 /// distance field once). The benchmark measures the binding, not contact.
 /// The world's gravity must be set before construction (Bullet copies it into each body when added).
 /// Dynamic rings start with the spec's initial velocity and ring_spin about the rod, deactivation disabled;
-/// sleeping ones at rest and asleep (ISLAND_SLEEPING), deactivation allowed. Static and kinematic rings (spec.parent) have
-/// no slider: the joint error then only says whether they stay on the axis. A kinematic ring's motion
-/// state gives the pose start + kinematic_speed t, with t the time simulated before the current
-/// stepSimulation (counted by an action at the end of every tick), so Bullet moves it in the standard way
-/// and reports the velocity of that move.
+/// sleeping ones at rest and asleep (ISLAND_SLEEPING), deactivation allowed. Static and kinematic rings (spec.parent)
+/// have no slider: the joint error then only says whether they stay on the axis. A kinematic ring's motion state gives
+/// the pose start + kinematic_speed t, with t the time simulated before the current stepSimulation (counted by an
+/// action at the end of every tick), so Bullet moves it in the standard way and reports the velocity of that move.
 class RodAndRings {
  public:
   RodAndRings(btDynamicsWorld& world, const CurtainSpec& spec);

@@ -45,13 +45,13 @@ struct Options {
   std::vector<int> sizes{20, 40, 100};  // the range of cloth resolutions
   int runs = 5;
   int threads = 1;
-  double seconds = 2.0;       // horizon of the error runs
-  int timing_frames = 30;     // frames per timed run
-  int deformable_max = 40;    // above it the deformable world costs minutes (100 x 100: 0.1 s a tick, ~16 min in all)
+  double seconds = 2.0;     // horizon of the error runs
+  int timing_frames = 30;   // frames per timed run
+  int deformable_max = 40;  // above it the deformable world costs minutes (100 x 100: 0.1 s a tick, ~16 min in all)
   std::string out = "bench-results";
   bool stability = true;
   bool plot = true;
-  int big = 150;              // the half-real-time check's resolution (0: skip)
+  int big = 150;  // the half-real-time check's resolution (0: skip)
 };
 
 /// One way of running one system: Bullet ticks per 1/60 s frame, and sinew's CG tolerance and CFL.
@@ -63,7 +63,8 @@ struct Setting {
   std::string label() const {
     std::ostringstream out;
     out << ticks << " ticks";
-    if (system.rfind("sinew", 0) == 0) out << ", tol " << cg_tolerance << (cfl != 0.9 ? ", cfl " + std::to_string(cfl).substr(0, 5) : "");
+    if (system.rfind("sinew", 0) == 0)
+      out << ", tol " << cg_tolerance << (cfl != 0.9 ? ", cfl " + std::to_string(cfl).substr(0, 5) : "");
     return out.str();
   }
 };
@@ -101,10 +102,11 @@ struct Run {
   double momentum_change = 0.0;       // largest |p_x - p_x(0)| [kg m/s]
   double energy_start = 0.0, energy_end = 0.0;
   double wall_ms = 0.0;
-  StepStats stats;                    // sinew only
+  StepStats stats;  // sinew only
 };
 
-Run simulate(const Setting& s, const CurtainSpec& spec, int threads, int frames, const std::vector<int>& snapshot_frames) {
+Run simulate(const Setting& s, const CurtainSpec& spec, int threads, int frames,
+             const std::vector<int>& snapshot_frames) {
   Run run;
   auto system = make_run(s, spec, threads);
   const double p0 = system->momentum_along_rod();
@@ -132,7 +134,8 @@ Run simulate(const Setting& s, const CurtainSpec& spec, int threads, int frames,
       if (k == f) run.snapshots[k] = x;
     const AttachmentError a = system->attachment();
     run.worst.bound_node = std::max(run.worst.bound_node, a.bound_node);
-    run.worst.bound_node_before_overwrite = std::max(run.worst.bound_node_before_overwrite, a.bound_node_before_overwrite);
+    run.worst.bound_node_before_overwrite =
+        std::max(run.worst.bound_node_before_overwrite, a.bound_node_before_overwrite);
     run.worst.ring_joint = std::max(run.worst.ring_joint, a.ring_joint);
     run.momentum_change = std::max(run.momentum_change, std::abs(system->momentum_along_rod() - p0));
   }
@@ -166,7 +169,7 @@ Error2 difference(const Vectors3& a, const Vectors3& b) {
 }
 
 struct Reference {
-  Setting setting, half;   // the reference, and the run at twice its step that shows its convergence
+  Setting setting, half;  // the reference, and the run at twice its step that shows its convergence
   Run run, half_run;
 };
 
@@ -244,12 +247,15 @@ void print_goals(std::vector<Row> rows, const Options& o) {
   std::printf("\n## goals\n");
   // When the deformable world at 40 x 40 lies outside the sweep (--deformable-max below 40), its
   // 1/240 s tick is timed here alone, without an error, for the 20x goal.
-  const bool sinew_40 = std::any_of(rows.begin(), rows.end(), [](const Row& r) { return r.n == 40 && r.ticks == 4 && is_sinew(r.system); });
-  const bool deformable_40 = std::any_of(rows.begin(), rows.end(), [](const Row& r) { return r.n == 40 && r.system == "bullet-deformable"; });
+  const bool sinew_40 = std::any_of(rows.begin(), rows.end(),
+                                    [](const Row& r) { return r.n == 40 && r.ticks == 4 && is_sinew(r.system); });
+  const bool deformable_40 =
+      std::any_of(rows.begin(), rows.end(), [](const Row& r) { return r.n == 40 && r.system == "bullet-deformable"; });
   if (sinew_40 && !deformable_40) {
     CurtainSpec spec;
     spec.n = 40;
-    Row r{"bullet-deformable", 40, 4, timed({"bullet-deformable", 4}, spec, o.threads, 3, 30), kInfinity, false, true, "4 ticks"};
+    Row r{"bullet-deformable", 40,    4,    timed({"bullet-deformable", 4}, spec, o.threads, 3, 30),
+          kInfinity,           false, true, "4 ticks"};
     r.ok = std::isfinite(r.ms_per_sim_s);
     rows.push_back(r);
     std::printf("(bullet-deformable at 40x40, 4 ticks: timed alone, median of 3 runs of 30 frames)\n");
@@ -260,17 +266,21 @@ void print_goals(std::vector<Row> rows, const Options& o) {
     // the sweep is far more exact than the peers' at 1/240 s).
     const Row* fastest = nullptr;
     for (const Row& s : rows)
-      if (s.n == 40 && s.ticks == 4 && is_sinew(s.system) && s.ok && (!fastest || s.ms_per_sim_s < fastest->ms_per_sim_s)) fastest = &s;
+      if (s.n == 40 && s.ticks == 4 && is_sinew(s.system) && s.ok &&
+          (!fastest || s.ms_per_sim_s < fastest->ms_per_sim_s))
+        fastest = &s;
     if (!fastest) continue;
     const double best = fastest->ms_per_sim_s;
     const double factor = r.ms_per_sim_s / best;
     char peer_error[64] = "no error measured";
     if (!r.timed_only) std::snprintf(peer_error, sizeof peer_error, "rms %.2e m at 2 s", r.rms_t2);
-    std::printf("40x40, 1/240 s tick: %s %.3f ms per tick (%s), %s %s (fastest setting, rms %.2e m at 2 s) %.3f ms: %.2fx (%s)\n",
-                r.system.c_str(), r.ms_per_sim_s / 240.0, peer_error, fastest->system.c_str(), fastest->setting.c_str(),
-                fastest->rms_t2, best / 240.0, factor,
-                r.system == "bullet-classic" ? (factor > 1 ? "goal met: faster" : "goal missed: slower")
-                                             : (factor >= 20 ? "goal met: at least 20x" : "goal missed: below 20x"));
+    std::printf(
+        "40x40, 1/240 s tick: %s %.3f ms per tick (%s), %s %s (fastest setting, rms %.2e m at 2 s) %.3f ms: %.2fx "
+        "(%s)\n",
+        r.system.c_str(), r.ms_per_sim_s / 240.0, peer_error, fastest->system.c_str(), fastest->setting.c_str(),
+        fastest->rms_t2, best / 240.0, factor,
+        r.system == "bullet-classic" ? (factor > 1 ? "goal met: faster" : "goal missed: slower")
+                                     : (factor >= 20 ? "goal met: at least 20x" : "goal missed: below 20x"));
   }
   int met = 0, total = 0;
   for (const Row& peer : rows) {
@@ -284,11 +294,13 @@ void print_goals(std::vector<Row> rows, const Options& o) {
     ++total;
     const bool win = best < peer.ms_per_sim_s;
     met += win;
-    std::printf("equal error, %dx%d: %s at %d ticks (rms %.2e m) %.1f ms/sim-s; sinew at that error or better: %s\n", peer.n, peer.n,
-                peer.system.c_str(), peer.ticks, peer.rms_t2, peer.ms_per_sim_s,
-                std::isfinite(best) ? (which + " " + std::to_string(ticks) + " ticks, " + std::to_string(best).substr(0, 7) + " ms/sim-s" +
-                                       (win ? " (faster)" : " (slower)")).c_str()
-                                    : "no setting in the sweep is that accurate (slower)");
+    std::printf("equal error, %dx%d: %s at %d ticks (rms %.2e m) %.1f ms/sim-s; sinew at that error or better: %s\n",
+                peer.n, peer.n, peer.system.c_str(), peer.ticks, peer.rms_t2, peer.ms_per_sim_s,
+                std::isfinite(best)
+                    ? (which + " " + std::to_string(ticks) + " ticks, " + std::to_string(best).substr(0, 7) +
+                       " ms/sim-s" + (win ? " (faster)" : " (slower)"))
+                          .c_str()
+                    : "no setting in the sweep is that accurate (slower)");
   }
   std::printf("equal error: sinew faster in %d of %d peer settings (sizes", met, total);
   for (int n : o.sizes) std::printf(" %d", n);
@@ -306,7 +318,8 @@ void print_big(const Options& o) {
     double tolerance;
   };
   Vectors3 tight;  // the multigrid run at 1e-6: the loose runs' solver reference
-  for (const BigSetting setting : {BigSetting{false, 1e-7}, BigSetting{true, 1e-6}, BigSetting{true, 1e-2}, BigSetting{true, 1e-1}}) {
+  for (const BigSetting setting :
+       {BigSetting{false, 1e-7}, BigSetting{true, 1e-6}, BigSetting{true, 1e-2}, BigSetting{true, 1e-1}}) {
     const bool multigrid = setting.multigrid;
     CurtainSpec spec;
     spec.n = o.big;
@@ -333,13 +346,15 @@ void print_big(const Options& o) {
                     std::sqrt(d.colwise().squaredNorm().mean()), d.colwise().norm().maxCoeff());
       solver_error = text;
     }
-    std::printf("%dx%d curtain, %s, %d ticks per frame (%.1f substeps per tick), tol %g, %d threads: one simulated second in %.2f wall s "
-                "(%.1f CG iterations per solve, attachment %.1e m, %s%s): %s\n",
-                o.big, o.big, multigrid ? "sinew-multigrid" : "sinew-implicit", ticks, double(st.substeps) / (60.0 * ticks),
-                settings.cg_tolerance, o.threads, seconds,
-                0.5 * (st.cg_iterations_step1 + st.cg_iterations_step4) / std::max(1, st.substeps), run->attachment().bound_node,
-                run->healthy() ? "healthy" : "NOT healthy", solver_error.c_str(),
-                seconds <= 2.0 ? "goal met (half real time or better)" : "goal missed (slower than half real time)");
+    std::printf(
+        "%dx%d curtain, %s, %d ticks per frame (%.1f substeps per tick), tol %g, %d threads: one simulated second in "
+        "%.2f wall s "
+        "(%.1f CG iterations per solve, attachment %.1e m, %s%s): %s\n",
+        o.big, o.big, multigrid ? "sinew-multigrid" : "sinew-implicit", ticks, double(st.substeps) / (60.0 * ticks),
+        settings.cg_tolerance, o.threads, seconds,
+        0.5 * (st.cg_iterations_step1 + st.cg_iterations_step4) / std::max(1, st.substeps),
+        run->attachment().bound_node, run->healthy() ? "healthy" : "NOT healthy", solver_error.c_str(),
+        seconds <= 2.0 ? "goal met (half real time or better)" : "goal missed (slower than half real time)");
   }
 }
 
@@ -352,9 +367,10 @@ std::FILE* open_csv(const Options& o, const char* name, const char* header) {
 }
 
 void usage() {
-  std::fprintf(stderr,
-               "usage: sinew-bench [--sizes 20,40,100] [--runs 5] [--threads N] [--seconds 2] [--out DIR] [--deformable-max N]\n"
-               "                   [--big 150] [--quick] [--no-stability] [--no-plot]\n");
+  std::fprintf(
+      stderr,
+      "usage: sinew-bench [--sizes 20,40,100] [--runs 5] [--threads N] [--seconds 2] [--out DIR] [--deformable-max N]\n"
+      "                   [--big 150] [--quick] [--no-stability] [--no-plot]\n");
 }
 
 Options parse(int argc, char** argv) {
@@ -408,22 +424,30 @@ int main(int argc, char** argv) try {
   std::filesystem::create_directories(o.out);
   const int frames = static_cast<int>(std::lround(o.seconds / kFrame));
   const int mid = frames / 2;  // t = 1 s at the default horizon
-  const std::vector<std::string> systems{"sinew", "sinew-implicit", "sinew-implicit-bending", "sinew-multigrid", "bullet-classic", "bullet-deformable"};
+  const std::vector<std::string> systems{"sinew",           "sinew-implicit", "sinew-implicit-bending",
+                                         "sinew-multigrid", "bullet-classic", "bullet-deformable"};
 
   std::printf("# sinew-bench\nmachine: %s, %u hardware threads; sinew threads: %d; Bullet: 1 thread (%s precision)\n",
-              cpu_model().c_str(), std::thread::hardware_concurrency(), o.threads, sizeof(btScalar) == 8 ? "double" : "single");
-  std::printf("scene: n x n cloth, 2 m x 2 m, 0.5 kg, edge springs 200 N/m (damping 0.05 N s/m), bending 1e-4 N m, ten 0.05 kg rings\n"
-              "sliding on a static rod, one top-row node bound per ring, every body starting at (0.2, 0, 1) m/s; 1/60 s frames,\n"
-              "errors at t = %.3g s and %.3g s against each system's own converged reference;\ntimes are medians of %d runs of %d frames, each after one untimed frame.\n",
-              mid * kFrame, frames * kFrame, o.runs, o.timing_frames);
+              cpu_model().c_str(), std::thread::hardware_concurrency(), o.threads,
+              sizeof(btScalar) == 8 ? "double" : "single");
+  std::printf(
+      "scene: n x n cloth, 2 m x 2 m, 0.5 kg, edge springs 200 N/m (damping 0.05 N s/m), bending 1e-4 N m, ten 0.05 kg "
+      "rings\n"
+      "sliding on a static rod, one top-row node bound per ring, every body starting at (0.2, 0, 1) m/s; 1/60 s "
+      "frames,\n"
+      "errors at t = %.3g s and %.3g s against each system's own converged reference;\ntimes are medians of %d runs of "
+      "%d frames, each after one untimed frame.\n",
+      mid * kFrame, frames * kFrame, o.runs, o.timing_frames);
 
   std::FILE* wp = open_csv(o, "work_precision.csv",
-                           "system,n,ticks,cg_tolerance,cfl,ms_per_sim_s,ms_per_tick,rms_t1,max_t1,rms_t2,max_t2,bound_node,bound_node_before_overwrite,"
+                           "system,n,ticks,cg_tolerance,cfl,ms_per_sim_s,ms_per_tick,rms_t1,max_t1,rms_t2,max_t2,bound_"
+                           "node,bound_node_before_overwrite,"
                            "ring_joint,momentum_change,energy_start,energy_end,survived,failed_frame");
   std::FILE* refs = open_csv(o, "references.csv", "system,n,ticks,cfl,rms_vs_half_t2,max_vs_half_t2");
   std::FILE* agree = open_csv(o, "agreement.csv", "system,n,bottom_edge_rms_max_over_time,bottom_edge_rms_t2");
-  std::FILE* phases = open_csv(o, "phases.csv",
-                               "system,n,ticks,substeps_per_tick,cg_iterations_per_substep,ms_per_tick,step1,step2,step3,step4,step5,forces,cg");
+  std::FILE* phases = open_csv(
+      o, "phases.csv",
+      "system,n,ticks,substeps_per_tick,cg_iterations_per_substep,ms_per_tick,step1,step2,step3,step4,step5,forces,cg");
 
   std::vector<Row> rows;
   for (int n : o.sizes) {
@@ -432,7 +456,8 @@ int main(int argc, char** argv) try {
     if (n < spec.rings) spec.rings = n;
     std::printf("\n## %d x %d cloth (%d nodes)\n", n, n, n * n);
     std::printf("models: where they cannot match the spec\n");
-    for (const std::string& system : systems) std::printf("  %-22s %s\n", system.c_str(), make_run({system}, spec, 1)->mismatch().c_str());
+    for (const std::string& system : systems)
+      std::printf("  %-22s %s\n", system.c_str(), make_run({system}, spec, 1)->mismatch().c_str());
 
     // ---- references ------------------------------------------------------------------------------
     std::map<std::string, Reference> ref;
@@ -445,14 +470,15 @@ int main(int argc, char** argv) try {
       r.half_run = simulate(r.half, spec, o.threads, frames, {mid, frames});
       Error2 e;
       if (r.run.survived && r.half_run.survived) e = difference(r.run.snapshots[frames], r.half_run.snapshots[frames]);
-      std::printf("  %-22s %-24s vs %-24s rms %.2e m, max %.2e m%s\n", system.c_str(), r.setting.label().c_str(), r.half.label().c_str(),
-                  e.rms, e.max, r.run.survived ? "" : "  (reference failed)");
+      std::printf("  %-22s %-24s vs %-24s rms %.2e m, max %.2e m%s\n", system.c_str(), r.setting.label().c_str(),
+                  r.half.label().c_str(), e.rms, e.max, r.run.survived ? "" : "  (reference failed)");
       std::fprintf(refs, "%s,%d,%d,%g,%.6e,%.6e\n", system.c_str(), n, r.setting.ticks, r.setting.cfl, e.rms, e.max);
       ref[system] = std::move(r);
     }
     // How far the models disagree: the bottom edge's path in each reference against sinew's.
     const Run& sinew_ref = ref["sinew"].run;
-    std::printf("agreement: bottom edge of each reference against sinew's (RMS over the edge; worst frame, and at the end)\n");
+    std::printf(
+        "agreement: bottom edge of each reference against sinew's (RMS over the edge; worst frame, and at the end)\n");
     for (const auto& [system, r] : ref) {
       if (system == "sinew" || !r.run.survived || !sinew_ref.survived) continue;
       double worst = 0.0;
@@ -464,8 +490,8 @@ int main(int argc, char** argv) try {
     }
 
     // ---- work-precision --------------------------------------------------------------------------
-    std::printf("work-precision:\n  %-22s %-22s %10s %9s %9s %9s %9s %9s %9s %9s %9s %s\n", "system", "setting", "ms/sim-s", "ms/tick",
-                "rms@1s", "max@1s", "rms@2s", "max@2s", "bound[m]", "joint[m]", "dp_x", "");
+    std::printf("work-precision:\n  %-22s %-22s %10s %9s %9s %9s %9s %9s %9s %9s %9s %s\n", "system", "setting",
+                "ms/sim-s", "ms/tick", "rms@1s", "max@1s", "rms@2s", "max@2s", "bound[m]", "joint[m]", "dp_x", "");
     for (const std::string& system : systems) {
       const std::string own = is_sinew(system) ? "sinew" : system;
       if (!ref.count(own)) continue;
@@ -484,28 +510,36 @@ int main(int argc, char** argv) try {
         const double per_tick = ms * kFrame / s.ticks;
         char status[96] = "";
         if (!run.survived) std::snprintf(status, sizeof status, "FAILED at frame %d", run.failed_frame);
-        const double bound = system == "bullet-deformable" ? run.worst.bound_node_before_overwrite : run.worst.bound_node;
-        std::printf("  %-22s %-22s %10.1f %9.3f %9.2e %9.2e %9.2e %9.2e %9.2e %9.2e %9.1e %s\n", system.c_str(), s.label().c_str(), ms,
-                    per_tick, e1.rms, e1.max, e2.rms, e2.max, bound, run.worst.ring_joint, run.momentum_change, status);
-        std::fprintf(wp, "%s,%d,%d,%g,%g,%.6g,%.6g,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.9g,%.9g,%d,%d\n", system.c_str(), n, s.ticks,
-                     s.cg_tolerance, s.cfl, ms, per_tick, e1.rms, e1.max, e2.rms, e2.max, run.worst.bound_node,
-                     run.worst.bound_node_before_overwrite, run.worst.ring_joint, run.momentum_change, run.energy_start, run.energy_end,
-                     run.survived ? 1 : 0, run.failed_frame);
+        const double bound =
+            system == "bullet-deformable" ? run.worst.bound_node_before_overwrite : run.worst.bound_node;
+        std::printf("  %-22s %-22s %10.1f %9.3f %9.2e %9.2e %9.2e %9.2e %9.2e %9.2e %9.1e %s\n", system.c_str(),
+                    s.label().c_str(), ms, per_tick, e1.rms, e1.max, e2.rms, e2.max, bound, run.worst.ring_joint,
+                    run.momentum_change, status);
+        std::fprintf(wp, "%s,%d,%d,%g,%g,%.6g,%.6g,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.9g,%.9g,%d,%d\n",
+                     system.c_str(), n, s.ticks, s.cg_tolerance, s.cfl, ms, per_tick, e1.rms, e1.max, e2.rms, e2.max,
+                     run.worst.bound_node, run.worst.bound_node_before_overwrite, run.worst.ring_joint,
+                     run.momentum_change, run.energy_start, run.energy_end, run.survived ? 1 : 0, run.failed_frame);
         std::fflush(wp);
         rows.push_back({system, n, s.ticks, ms, e2.rms, run.survived && std::isfinite(e2.rms), false, s.label()});
-        if (is_sinew(system) && (s.ticks == 4 || (system != "sinew" && system != "sinew-implicit" && s.ticks == 1)) && run.survived) {
+        if (is_sinew(system) && (s.ticks == 4 || (system != "sinew" && system != "sinew-implicit" && s.ticks == 1)) &&
+            run.survived) {
           const StepStats& st = run.stats;
           const double ticks = frames * s.ticks, per = 1.0 / ticks;
-          const double cg_per_substep = double(st.cg_iterations_step1 + st.cg_iterations_step4) / std::max(1, st.substeps);
-          std::fprintf(phases, "%s,%d,%d,%.3f,%.2f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f\n", system.c_str(), n, s.ticks, st.substeps * per,
-                       cg_per_substep, st.ms.total * per, st.ms.implicit_half_velocity * per, st.ms.advance_positions * per,
-                       st.ms.process_collisions * per, st.ms.backward_euler_velocity * per, st.ms.extrapolate_velocity * per,
-                       st.ms.forces * per, st.ms.cg * per);
+          const double cg_per_substep =
+              double(st.cg_iterations_step1 + st.cg_iterations_step4) / std::max(1, st.substeps);
+          std::fprintf(phases, "%s,%d,%d,%.3f,%.2f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f\n", system.c_str(), n,
+                       s.ticks, st.substeps * per, cg_per_substep, st.ms.total * per,
+                       st.ms.implicit_half_velocity * per, st.ms.advance_positions * per,
+                       st.ms.process_collisions * per, st.ms.backward_euler_velocity * per,
+                       st.ms.extrapolate_velocity * per, st.ms.forces * per, st.ms.cg * per);
         }
       }
     }
-    std::printf("  (bound: largest distance of a bound node from its pivot over the run; for bullet-deformable measured before it\n"
-                "   overwrites anchored nodes, which leaves 0 after; joint: ring centre from the rod axis; dp_x: momentum along the rod)\n");
+    std::printf(
+        "  (bound: largest distance of a bound node from its pivot over the run; for bullet-deformable measured before "
+        "it\n"
+        "   overwrites anchored nodes, which leaves 0 after; joint: ring centre from the rod axis; dp_x: momentum "
+        "along the rod)\n");
   }
   print_goals(rows, o);
   if (o.big > 0) print_big(o);
@@ -515,7 +549,9 @@ int main(int argc, char** argv) try {
   std::fclose(phases);
 
   // sinew's per-phase timings, read back from what the sweep recorded.
-  std::printf("\n## sinew's step, per Bullet tick (1/60 s over the ticks column; phases of section 3.3 in ms; error runs, not the timed ones)\n");
+  std::printf(
+      "\n## sinew's step, per Bullet tick (1/60 s over the ticks column; phases of section 3.3 in ms; error runs, not "
+      "the timed ones)\n");
   {
     std::FILE* f = std::fopen((o.out + "/phases.csv").c_str(), "r");
     char line[512];
@@ -536,7 +572,8 @@ int main(int argc, char** argv) try {
 
   if (o.plot) {
     const std::string command = "/usr/bin/python3 \"" SINEW_BENCH_PLOT "\" \"" + o.out + "\"";
-    if (std::system(command.c_str()) != 0) std::printf("\n(no plot: %s failed; needs Debian's python3-matplotlib)\n", command.c_str());
+    if (std::system(command.c_str()) != 0)
+      std::printf("\n(no plot: %s failed; needs Debian's python3-matplotlib)\n", command.c_str());
   }
   std::printf("\nCSV files and the plot are in %s/\n", o.out.c_str());
   return 0;

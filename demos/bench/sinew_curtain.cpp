@@ -14,19 +14,23 @@ namespace {
 
 class SinewCurtain final : public SinewCurtainRun {
  public:
-  SinewCurtain(const CurtainSpec& spec, const SinewSettings& settings) : m_spec(spec), m_settings(settings), m_pivots(bound_pivots(spec)) {
+  SinewCurtain(const CurtainSpec& spec, const SinewSettings& settings)
+      : m_spec(spec), m_settings(settings), m_pivots(bound_pivots(spec)) {
     if (!(std::isfinite(settings.cg_tolerance) && settings.cg_tolerance > 0))
       fail("sinew curtain: cg_tolerance = ", settings.cg_tolerance, ", must be positive");
     if (!(settings.cfl > 0 && settings.cfl <= 1)) fail("sinew curtain: cfl = ", settings.cfl, ", must be in (0, 1]");
     if (!(std::isfinite(settings.binding_spring_stiffness) && settings.binding_spring_stiffness >= 0))
-      fail("sinew curtain: binding_spring_stiffness = ", settings.binding_spring_stiffness, " N/m, must be finite and >= 0");
+      fail("sinew curtain: binding_spring_stiffness = ", settings.binding_spring_stiffness,
+           " N/m, must be finite and >= 0");
     if (!(std::isfinite(settings.binding_spring_damping_ratio) && settings.binding_spring_damping_ratio >= 0))
-      fail("sinew curtain: binding_spring_damping_ratio = ", settings.binding_spring_damping_ratio, ", must be finite and >= 0");
+      fail("sinew curtain: binding_spring_damping_ratio = ", settings.binding_spring_damping_ratio,
+           ", must be finite and >= 0");
     m_configuration = std::make_unique<btDefaultCollisionConfiguration>();
     m_dispatcher = std::make_unique<btCollisionDispatcher>(m_configuration.get());
     m_broadphase = std::make_unique<btDbvtBroadphase>();
     m_solver = std::make_unique<btSequentialImpulseConstraintSolver>();
-    m_world = std::make_unique<btDiscreteDynamicsWorld>(m_dispatcher.get(), m_broadphase.get(), m_solver.get(), m_configuration.get());
+    m_world = std::make_unique<btDiscreteDynamicsWorld>(m_dispatcher.get(), m_broadphase.get(), m_solver.get(),
+                                                        m_configuration.get());
     m_world->setGravity(btVector3(0, btScalar(-spec.gravity), 0));
     m_rings = std::make_unique<RodAndRings>(*m_world, spec);
     // Per-tick statistics: a post-tick callback installed before the coupling, which chains it.
@@ -110,7 +114,8 @@ class SinewCurtain final : public SinewCurtainRun {
     // potential_energy: elastic plus the free particles' gravity; the rings' gravity is Bullet's.
     double e = m_rings->energy(m_spec.gravity) + s.potential_energy();
     for (Index node : m_cloth.nodes)
-      if (s.particles().kind[node] == ParticleKind::free) e += 0.5 * s.particles().mass[node] * s.particles().v.col(node).squaredNorm();
+      if (s.particles().kind[node] == ParticleKind::free)
+        e += 0.5 * s.particles().mass[node] * s.particles().v.col(node).squaredNorm();
     return e;
   }
 
@@ -131,8 +136,8 @@ class SinewCurtain final : public SinewCurtainRun {
   std::string mismatch() const override {
     std::ostringstream out;
     if (m_settings.binding_spring_stiffness > 0)
-      out << "bound nodes tied by binding springs (k = " << m_settings.binding_spring_stiffness << " N/m, damping ratio "
-          << m_settings.binding_spring_damping_ratio << ") instead of hard bindings";
+      out << "bound nodes tied by binding springs (k = " << m_settings.binding_spring_stiffness
+          << " N/m, damping ratio " << m_settings.binding_spring_damping_ratio << ") instead of hard bindings";
     else
       out << "the bound nodes' " << m_bound_mass * 1e3
           << " g is not added to the rings (Bullet owns their mass properties; the peers keep it on the nodes)";

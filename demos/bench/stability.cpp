@@ -44,10 +44,12 @@ Vec3 drop_rest_position(const DropSpec& d, int i, int j) {
 
 void validate(const DropSpec& d) {
   if (d.n < 2) fail("drop: n = ", d.n, ", needs at least 2 nodes per side");
-  if (!(d.size > 0 && d.cloth_mass > 0 && d.plate_size > d.size && d.plate_thickness > 0 && d.height > 0 && d.thickness > 0))
-    fail("drop: size, cloth_mass, plate_thickness, height and thickness must be positive and plate_size > size (plate ", d.plate_size,
-         " m, cloth ", d.size, " m)");
-  if (!(std::isfinite(d.drop_speed) && d.drop_speed >= 0)) fail("drop: drop_speed = ", d.drop_speed, " m/s, must be finite and >= 0");
+  if (!(d.size > 0 && d.cloth_mass > 0 && d.plate_size > d.size && d.plate_thickness > 0 && d.height > 0 &&
+        d.thickness > 0))
+    fail("drop: size, cloth_mass, plate_thickness, height and thickness must be positive and plate_size > size (plate ",
+         d.plate_size, " m, cloth ", d.size, " m)");
+  if (!(std::isfinite(d.drop_speed) && d.drop_speed >= 0))
+    fail("drop: drop_speed = ", d.drop_speed, " m/s, must be finite and >= 0");
 }
 
 // The static plate, in any Bullet world: a box that collides with everything.
@@ -58,7 +60,8 @@ struct Plate {
   btDynamicsWorld* world = nullptr;
 
   Plate(btDynamicsWorld& w, const DropSpec& d) : world(&w) {
-    shape = std::make_unique<btBoxShape>(btVector3(btScalar(0.5 * d.plate_size), btScalar(0.5 * d.plate_thickness), btScalar(0.5 * d.plate_size)));
+    shape = std::make_unique<btBoxShape>(
+        btVector3(btScalar(0.5 * d.plate_size), btScalar(0.5 * d.plate_thickness), btScalar(0.5 * d.plate_size)));
     // Bullet's box margin (0.04 m by default) is inside the extents for a box, but a margin larger than
     // the half thickness would round the plate's edges into it: keep it well below.
     shape->setMargin(btScalar(0.25 * d.plate_thickness));
@@ -79,7 +82,8 @@ class SinewDrop final : public CurtainRun {
     m_dispatcher = std::make_unique<btCollisionDispatcher>(m_configuration.get());
     m_broadphase = std::make_unique<btDbvtBroadphase>();
     m_solver = std::make_unique<btSequentialImpulseConstraintSolver>();
-    m_world = std::make_unique<btDiscreteDynamicsWorld>(m_dispatcher.get(), m_broadphase.get(), m_solver.get(), m_configuration.get());
+    m_world = std::make_unique<btDiscreteDynamicsWorld>(m_dispatcher.get(), m_broadphase.get(), m_solver.get(),
+                                                        m_configuration.get());
     m_world->setGravity(btVector3(0, btScalar(-d.gravity), 0));
     m_plate = std::make_unique<Plate>(*m_world, d);
 
@@ -107,10 +111,13 @@ class SinewDrop final : public CurtainRun {
   }
 
   std::string system() const override { return m_multigrid ? "sinew-multigrid" : "sinew"; }
-  void advance(double frame_dt, int steps) override { m_world->stepSimulation(btScalar(frame_dt), steps, btScalar(frame_dt / steps)); }
+  void advance(double frame_dt, int steps) override {
+    m_world->stepSimulation(btScalar(frame_dt), steps, btScalar(frame_dt / steps));
+  }
   Vectors3 nodes() const override {
     Vectors3 out(3, static_cast<Index>(m_cloth.nodes.size()));
-    for (std::size_t k = 0; k < m_cloth.nodes.size(); ++k) out.col(static_cast<Index>(k)) = m_coupling->system().particles().x.col(m_cloth.nodes[k]);
+    for (std::size_t k = 0; k < m_cloth.nodes.size(); ++k)
+      out.col(static_cast<Index>(k)) = m_coupling->system().particles().x.col(m_cloth.nodes[k]);
     return out;
   }
   AttachmentError attachment() const override { return {}; }
@@ -160,7 +167,9 @@ class BulletDrop : public CurtainRun {
     if (m_world && m_cloth) m_world->removeCollisionObject(m_cloth.get());
     m_plate.reset();
   }
-  void advance(double frame_dt, int steps) override { m_world->stepSimulation(btScalar(frame_dt), steps, btScalar(frame_dt / steps)); }
+  void advance(double frame_dt, int steps) override {
+    m_world->stepSimulation(btScalar(frame_dt), steps, btScalar(frame_dt / steps));
+  }
   Vectors3 nodes() const override {
     Vectors3 x(3, m_cloth->m_nodes.size());
     for (int k = 0; k < m_cloth->m_nodes.size(); ++k) x.col(k) = bullet::to_eigen(m_cloth->m_nodes[k].m_x);
@@ -196,9 +205,11 @@ class BulletDrop : public CurtainRun {
   // The cloth, not yet in the world.
   void build_cloth(btSoftBodyWorldInfo& info) {
     const int n = m_spec.n;
-    m_cloth.reset(btSoftBodyHelpers::CreatePatch(info, bullet::to_bullet(drop_rest_position(m_spec, 0, 0)), bullet::to_bullet(drop_rest_position(m_spec, n - 1, 0)),
+    m_cloth.reset(btSoftBodyHelpers::CreatePatch(info, bullet::to_bullet(drop_rest_position(m_spec, 0, 0)),
+                                                 bullet::to_bullet(drop_rest_position(m_spec, n - 1, 0)),
                                                  bullet::to_bullet(drop_rest_position(m_spec, 0, n - 1)),
-                                                 bullet::to_bullet(drop_rest_position(m_spec, n - 1, n - 1)), n, n, 0, true));
+                                                 bullet::to_bullet(drop_rest_position(m_spec, n - 1, n - 1)), n, n, 0,
+                                                 true));
     for (int j = 0; j < n; ++j)
       for (int i = 0; i < n; ++i) {
         btSoftBody::Node& nd = m_cloth->m_nodes[j * n + i];
@@ -236,7 +247,8 @@ class ClassicDrop final : public BulletDrop {
     m_dispatcher = std::make_unique<btCollisionDispatcher>(m_configuration.get());
     m_broadphase = std::make_unique<btDbvtBroadphase>();
     m_solver = std::make_unique<btSequentialImpulseConstraintSolver>();
-    auto world = std::make_unique<btSoftRigidDynamicsWorld>(m_dispatcher.get(), m_broadphase.get(), m_solver.get(), m_configuration.get());
+    auto world = std::make_unique<btSoftRigidDynamicsWorld>(m_dispatcher.get(), m_broadphase.get(), m_solver.get(),
+                                                            m_configuration.get());
     const btVector3 g(0, btScalar(-d.gravity), 0);
     world->setGravity(g);
     world->getWorldInfo().m_gravity = g;
@@ -251,7 +263,9 @@ class ClassicDrop final : public BulletDrop {
     soft_world.addSoftBody(m_cloth.get());
   }
   std::string system() const override { return "bullet-classic"; }
-  std::string mismatch() const override { return "rigid contacts through the plate's sparse SDF (SDF_RS), margin = thickness; PBD links (kLST 1, 10 sweeps)"; }
+  std::string mismatch() const override {
+    return "rigid contacts through the plate's sparse SDF (SDF_RS), margin = thickness; PBD links (kLST 1, 10 sweeps)";
+  }
 };
 
 // Deformable: its own rigid-deformable contacts (SDF_RD node contacts and SDF_RDF face contacts), solved
@@ -266,8 +280,8 @@ class DeformableDrop final : public BulletDrop {
     m_deformable_solver = std::make_unique<btDeformableBodySolver>();
     auto solver = std::make_unique<btDeformableMultiBodyConstraintSolver>();
     solver->setDeformableSolver(m_deformable_solver.get());
-    auto world = std::make_unique<btDeformableMultiBodyDynamicsWorld>(m_dispatcher.get(), m_broadphase.get(), solver.get(),
-                                                                       m_configuration.get(), m_deformable_solver.get());
+    auto world = std::make_unique<btDeformableMultiBodyDynamicsWorld>(
+        m_dispatcher.get(), m_broadphase.get(), solver.get(), m_configuration.get(), m_deformable_solver.get());
     m_solver = std::move(solver);
     const btVector3 g(0, btScalar(-d.gravity), 0);
     world->setGravity(g);
@@ -284,13 +298,16 @@ class DeformableDrop final : public BulletDrop {
     m_cloth->m_cfg.kKHR = 1;
     m_cloth->m_cfg.collisions = btSoftBody::fCollision::SDF_RD | btSoftBody::fCollision::SDF_RDF;
     deformable_world.addSoftBody(m_cloth.get());
-    m_forces.push_back(std::make_unique<btDeformableMassSpringForce>(btScalar(d.stretch_stiffness), btScalar(d.stretch_damping), true));
+    m_forces.push_back(std::make_unique<btDeformableMassSpringForce>(btScalar(d.stretch_stiffness),
+                                                                     btScalar(d.stretch_damping), true));
     deformable_world.addForce(m_cloth.get(), m_forces.back().get());
     m_forces.push_back(std::make_unique<btDeformableGravityForce>(g));
     deformable_world.addForce(m_cloth.get(), m_forces.back().get());
   }
   std::string system() const override { return "bullet-deformable"; }
-  std::string mismatch() const override { return "SDF_RD node + SDF_RDF face contacts, margin = thickness; no bending"; }
+  std::string mismatch() const override {
+    return "SDF_RD node + SDF_RDF face contacts, margin = thickness; no bending";
+  }
 
  private:
   double elastic_energy() const override {
@@ -310,7 +327,8 @@ class DeformableDrop final : public BulletDrop {
 
 std::unique_ptr<CurtainRun> make_stability_run(const StabilityCase& c, const std::string& system) {
   if (c.drop) {
-    if (system == "sinew" || system == "sinew-multigrid") return std::make_unique<SinewDrop>(c.drop_spec, system == "sinew-multigrid");
+    if (system == "sinew" || system == "sinew-multigrid")
+      return std::make_unique<SinewDrop>(c.drop_spec, system == "sinew-multigrid");
     if (system == "bullet-classic") return std::make_unique<ClassicDrop>(c.drop_spec);
     if (system == "bullet-deformable") return std::make_unique<DeformableDrop>(c.drop_spec);
   } else {
@@ -388,10 +406,11 @@ std::vector<StabilityCase> stability_cases() {
   }
   curtain("stiff_cloth", "k = 500 N/m per edge at 20 x 20", 20).curtain.stretch_stiffness = 500.0;
   {
-    StabilityCase& c = curtain("stiff_binding_springs_1_24",
-                               "sinew: binding springs k = 1e12 N/m instead of hard bindings; 1/24 s frames of ONE tick "
-                               "(the peers' anchors are not springs: they run their usual anchors at that step)",
-                               20);
+    StabilityCase& c =
+        curtain("stiff_binding_springs_1_24",
+                "sinew: binding springs k = 1e12 N/m instead of hard bindings; 1/24 s frames of ONE tick "
+                "(the peers' anchors are not springs: they run their usual anchors at that step)",
+                20);
     c.binding_spring_stiffness = 1e12;
     c.frame_dt = 1.0 / 24.0;
     c.steps = 1;
@@ -404,7 +423,8 @@ std::vector<StabilityCase> stability_cases() {
     fixed.curtain.parent = RingParent::fixed;
     cases.push_back(fixed);
   }
-  curtain("spin_100", "rings spun up impulsively to 100 rad/s about the rod, then free on their sliders", 20).curtain.ring_spin = 100.0;
+  curtain("spin_100", "rings spun up impulsively to 100 rad/s about the rod, then free on their sliders", 20)
+      .curtain.ring_spin = 100.0;
   {
     StabilityCase c;
     c.name = "fast_drop_on_thin_plate";
@@ -412,10 +432,11 @@ std::vector<StabilityCase> stability_cases() {
     c.drop = true;
     cases.push_back(c);
   }
-  curtain("parents_kinematic", "kinematic rings (CF_KINEMATIC_OBJECT) sliding at 0.2 m/s along the rod", 20).curtain.parent = RingParent::kinematic;
+  curtain("parents_kinematic", "kinematic rings (CF_KINEMATIC_OBJECT) sliding at 0.2 m/s along the rod", 20)
+      .curtain.parent = RingParent::kinematic;
   curtain("parents_static", "static rings (mass 0)", 20).curtain.parent = RingParent::fixed;
-  curtain("parents_sleeping", "dynamic rings asleep (ISLAND_SLEEPING) at the start, deactivation allowed", 20).curtain.parent =
-      RingParent::sleeping;
+  curtain("parents_sleeping", "dynamic rings asleep (ISLAND_SLEEPING) at the start, deactivation allowed", 20)
+      .curtain.parent = RingParent::sleeping;
   return cases;
 }
 
@@ -425,7 +446,9 @@ StabilityCase stability_case(const std::string& name) {
   fail("stability: no case called \"", name, "\"");
 }
 
-std::vector<std::string> stability_systems() { return {"sinew", "sinew-multigrid", "bullet-classic", "bullet-deformable"}; }
+std::vector<std::string> stability_systems() {
+  return {"sinew", "sinew-multigrid", "bullet-classic", "bullet-deformable"};
+}
 
 StabilityResult run_stability_case(const StabilityCase& c, const std::string& system) {
   StabilityResult r;
@@ -478,14 +501,16 @@ StabilityResult run_stability_case(const StabilityCase& c, const std::string& sy
       const Vectors3 x = run->nodes();
       for (Index k = 0; k < x.cols(); ++k) {
         const Vec3 p = x.col(k);
-        if (std::abs(p.x()) < plate_half && std::abs(p.z()) < plate_half) r.min_clearance = std::min(r.min_clearance, p.y() - plate_bottom);
+        if (std::abs(p.x()) < plate_half && std::abs(p.z()) < plate_half)
+          r.min_clearance = std::min(r.min_clearance, p.y() - plate_bottom);
       }
       if (r.min_clearance < 0.0) {
         r.tunnelled = true;
         return failed(f, "tunnelled through the plate");
       }
     }
-    if (!(r.energy_gain <= c.blow_up_gain)) return failed(f, std::isfinite(r.energy_gain) ? "energy blow-up" : "non-finite energy");
+    if (!(r.energy_gain <= c.blow_up_gain))
+      return failed(f, std::isfinite(r.energy_gain) ? "energy blow-up" : "non-finite energy");
   }
   r.survived = true;
   if (!c.drop && c.curtain.parent == RingParent::sleeping) {
@@ -496,7 +521,9 @@ StabilityResult run_stability_case(const StabilityCase& c, const std::string& sy
     // motion the sliding cloth gives a ring that is awake.
     for (const BoundPivot& p : bound_pivots(c.curtain))
       moved = moved || (x.col(p.node) - node_rest_position(c.curtain, p.node, 0)).norm() > 1e-6;
-    if (!moved) r.note += (r.note.empty() ? "" : "; ") + std::string("the rings never woke: no bound node ever left its rest position");
+    if (!moved)
+      r.note +=
+          (r.note.empty() ? "" : "; ") + std::string("the rings never woke: no bound node ever left its rest position");
   }
   return finish(r);
 }
@@ -508,8 +535,10 @@ std::vector<StabilityResult> run_stability_suite(const std::vector<std::string>&
       results.push_back(run_stability_case(c, system));
       if (progress) {
         const StabilityResult& r = results.back();
-        std::fprintf(progress, "  %-34s %-18s %s%s (%.0f ms)\n", r.case_name.c_str(), r.system.c_str(), r.survived ? "survived" : "FAILED ",
-                     r.survived ? "" : (" at frame " + std::to_string(r.failed_frame) + ": " + r.reason).c_str(), r.wall_ms);
+        std::fprintf(progress, "  %-34s %-18s %s%s (%.0f ms)\n", r.case_name.c_str(), r.system.c_str(),
+                     r.survived ? "survived" : "FAILED ",
+                     r.survived ? "" : (" at frame " + std::to_string(r.failed_frame) + ": " + r.reason).c_str(),
+                     r.wall_ms);
         std::fflush(progress);
       }
     }
@@ -517,46 +546,58 @@ std::vector<StabilityResult> run_stability_suite(const std::vector<std::string>&
 }
 
 void print_stability_table(std::FILE* out, const std::vector<StabilityResult>& results) {
-  std::fprintf(out, "%-34s %-18s %-8s %6s %-28s %10s %10s %10s %10s %9s\n", "case", "system", "survived", "frame", "reason",
-               "energy", "drift", "drift pre", "ring joint", "ms");
-  std::fprintf(out, "%-34s %-18s %-8s %6s %-28s %10s %10s %10s %10s %9s\n", "", "", "", "", "", "gain", "[m]", "overwrite", "[m]", "");
+  std::fprintf(out, "%-34s %-18s %-8s %6s %-28s %10s %10s %10s %10s %9s\n", "case", "system", "survived", "frame",
+               "reason", "energy", "drift", "drift pre", "ring joint", "ms");
+  std::fprintf(out, "%-34s %-18s %-8s %6s %-28s %10s %10s %10s %10s %9s\n", "", "", "", "", "", "gain", "[m]",
+               "overwrite", "[m]", "");
   for (const StabilityResult& r : results) {
     const std::string reason = r.reason.size() > 28 ? r.reason.substr(0, 25) + "..." : r.reason;
-    std::fprintf(out, "%-34s %-18s %-8s %6d %-28s %10.2e %10.2e %10.2e %10.2e %9.0f\n", r.case_name.c_str(), r.system.c_str(),
-                 !r.run ? "not run" : r.survived ? "yes" : "NO", r.failed_frame, reason.c_str(), r.energy_gain, r.max_drift,
-                 r.max_drift_before_overwrite, r.max_ring_joint, r.wall_ms);
+    std::fprintf(out, "%-34s %-18s %-8s %6d %-28s %10.2e %10.2e %10.2e %10.2e %9.0f\n", r.case_name.c_str(),
+                 r.system.c_str(),
+                 !r.run       ? "not run"
+                 : r.survived ? "yes"
+                              : "NO",
+                 r.failed_frame, reason.c_str(), r.energy_gain, r.max_drift, r.max_drift_before_overwrite,
+                 r.max_ring_joint, r.wall_ms);
   }
-  std::fprintf(out,
-               "energy gain: max (E(t) - E(0)) / (energy the cloth brings), E in the frame of kinematic parents and without the "
-               "binding springs' own energy; a passive scene can only lose energy.\ndrift: hard-binding drift, anchor error, or (stiff_binding_springs) the springs' "
-               "stretch; the deformable world overwrites anchored nodes, 'drift pre' is its error before that.\n");
+  std::fprintf(
+      out,
+      "energy gain: max (E(t) - E(0)) / (energy the cloth brings), E in the frame of kinematic parents and without the "
+      "binding springs' own energy; a passive scene can only lose energy.\ndrift: hard-binding drift, anchor error, or "
+      "(stiff_binding_springs) the springs' "
+      "stretch; the deformable world overwrites anchored nodes, 'drift pre' is its error before that.\n");
   for (const StabilityCase& c : stability_cases()) {
-    std::fprintf(out, "%s: %s; %d frames of %.4g s, %d tick%s each\n", c.name.c_str(), c.what.c_str(), c.frames, c.frame_dt, c.steps,
-                 c.steps == 1 ? "" : "s");
+    std::fprintf(out, "%s: %s; %d frames of %.4g s, %d tick%s each\n", c.name.c_str(), c.what.c_str(), c.frames,
+                 c.frame_dt, c.steps, c.steps == 1 ? "" : "s");
     for (const StabilityResult& r : results)
       if (r.case_name == c.name) {
         if (!r.note.empty()) std::fprintf(out, "    %s: %s\n", r.system.c_str(), r.note.c_str());
         if (r.spring_energy > 0.0)
-          std::fprintf(out, "    %s: the binding springs store at most %.2e of the energy scale (left out of the gain)\n", r.system.c_str(),
-                       r.spring_energy);
-        if (!r.survived && r.reason.size() > 28) std::fprintf(out, "    %s failed: %s\n", r.system.c_str(), r.reason.c_str());
+          std::fprintf(out,
+                       "    %s: the binding springs store at most %.2e of the energy scale (left out of the gain)\n",
+                       r.system.c_str(), r.spring_energy);
+        if (!r.survived && r.reason.size() > 28)
+          std::fprintf(out, "    %s failed: %s\n", r.system.c_str(), r.reason.c_str());
         if (c.drop && r.run)
-          std::fprintf(out, "    %s: lowest node %.4g m above the plate's bottom face%s\n", r.system.c_str(), r.min_clearance,
-                       r.tunnelled ? " (tunnelled)" : "");
+          std::fprintf(out, "    %s: lowest node %.4g m above the plate's bottom face%s\n", r.system.c_str(),
+                       r.min_clearance, r.tunnelled ? " (tunnelled)" : "");
       }
   }
 }
 
 void write_stability_csv(std::FILE* out, const std::vector<StabilityResult>& results) {
-  std::fprintf(out, "case,system,run,survived,failed_frame,frames,reason,energy_gain,energy_scale_J,max_drift_m,max_drift_before_overwrite_m,"
-                    "max_ring_joint_m,min_clearance_m,tunnelled,wall_ms,spring_energy\n");
+  std::fprintf(out,
+               "case,system,run,survived,failed_frame,frames,reason,energy_gain,energy_scale_J,max_drift_m,max_drift_"
+               "before_overwrite_m,"
+               "max_ring_joint_m,min_clearance_m,tunnelled,wall_ms,spring_energy\n");
   for (const StabilityResult& r : results) {
     std::string reason = r.reason;
     std::replace(reason.begin(), reason.end(), '"', '\'');
-    std::fprintf(out, "%s,%s,%d,%d,%d,%d,\"%s\",%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%d,%.3f,%.6e\n", r.case_name.c_str(), r.system.c_str(), r.run ? 1 : 0,
-                 r.survived ? 1 : 0, r.failed_frame, r.frames, reason.c_str(), r.energy_gain, r.energy_scale, r.max_drift,
-                 r.max_drift_before_overwrite, r.max_ring_joint, std::isfinite(r.min_clearance) ? r.min_clearance : -1.0, r.tunnelled ? 1 : 0,
-                 r.wall_ms, r.spring_energy);
+    std::fprintf(out, "%s,%s,%d,%d,%d,%d,\"%s\",%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%d,%.3f,%.6e\n", r.case_name.c_str(),
+                 r.system.c_str(), r.run ? 1 : 0, r.survived ? 1 : 0, r.failed_frame, r.frames, reason.c_str(),
+                 r.energy_gain, r.energy_scale, r.max_drift, r.max_drift_before_overwrite, r.max_ring_joint,
+                 std::isfinite(r.min_clearance) ? r.min_clearance : -1.0, r.tunnelled ? 1 : 0, r.wall_ms,
+                 r.spring_energy);
   }
 }
 

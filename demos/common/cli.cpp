@@ -20,7 +20,8 @@ namespace {
   if (p.flags & kSize) synopsis += " [--size WxH]";
   if (p.flags & kScreenshot) synopsis += " [--screenshot FILE]";
   if (p.flags & kOverlays) synopsis += " [--no-springs] [--no-hard] [--no-soft] [--parents]";
-  std::fprintf(stderr, "%s: %s\nusage: %s\n(%s --list names the scenes)\n", p.name, problem.c_str(), synopsis.c_str(), p.name);
+  std::fprintf(stderr, "%s: %s\nusage: %s\n(%s --list names the scenes)\n", p.name, problem.c_str(), synopsis.c_str(),
+               p.name);
   std::exit(2);
 }
 
@@ -36,7 +37,8 @@ int whole_number(const Program& p, const char* flag, const char* text) {
 double positive_number(const Program& p, const char* flag, const char* text) {
   char* end = nullptr;
   const double v = std::strtod(text, &end);
-  if (end == text || *end != '\0' || !(v > 0) || !(v < 1e9)) usage(p, std::string(flag) + " takes a positive number, got '" + text + "'");
+  if (end == text || *end != '\0' || !(v > 0) || !(v < 1e9))
+    usage(p, std::string(flag) + " takes a positive number, got '" + text + "'");
   return v;
 }
 
@@ -77,11 +79,10 @@ Options parse_command_line(const Program& p, int argc, char** argv) {
       takes(kSize);
       const char* text = value();
       char tail = 0;
-      if (std::sscanf(text, "%dx%d%c", &o.width, &o.height, &tail) != 2 || o.width < 16 || o.height < 16 || o.width > 8192 ||
-          o.height > 8192)
+      if (std::sscanf(text, "%dx%d%c", &o.width, &o.height, &tail) != 2 || o.width < 16 || o.height < 16 ||
+          o.width > 8192 || o.height > 8192)
         usage(p, std::string("--size takes WxH, each 16 to 8192 pixels, got '") + text + "'");
-    }
-    else if (arg == "--no-springs") takes(kOverlays), o.springs = false;
+    } else if (arg == "--no-springs") takes(kOverlays), o.springs = false;
     else if (arg == "--no-hard") takes(kOverlays), o.hard_bound = false;
     else if (arg == "--no-soft") takes(kOverlays), o.soft_bound = false;
     else if (arg == "--parents") takes(kOverlays), o.parents = true;
@@ -105,7 +106,8 @@ Options parse_command_line(const Program& p, int argc, char** argv) {
   if (std::find(p.kinds.begin(), p.kinds.end(), found->kind) == p.kinds.end())
     usage(p, "'" + o.scene + "' is a " + scenes::to_string(found->kind) + " scene, which " + p.name + " does not run");
   if ((!o.out.empty() || !o.render.empty() || !o.video.empty()) && found->kind != scenes::SceneKind::bullet)
-    usage(p, "--out, --render and --video draw Bullet scenes; '" + o.scene + "' is a " + scenes::to_string(found->kind) + " scene");
+    usage(p, "--out, --render and --video draw Bullet scenes; '" + o.scene + "' is a " +
+                 scenes::to_string(found->kind) + " scene");
   return o;
 }
 
@@ -113,7 +115,8 @@ void print_scenes(std::FILE* out, const Program& p) {
   for (const scenes::SceneInfo& s : scenes::registered_scenes()) {
     if (std::find(p.kinds.begin(), p.kinds.end(), s.kind) == p.kinds.end()) continue;
     const std::string frame = s.gallery_frame > 0 ? std::to_string(s.gallery_frame) : "-";
-    std::fprintf(out, "%-44s %-6s %-4s %s\n", s.name.c_str(), scenes::to_string(s.kind), frame.c_str(), s.description.c_str());
+    std::fprintf(out, "%-44s %-6s %-4s %s\n", s.name.c_str(), scenes::to_string(s.kind), frame.c_str(),
+                 s.description.c_str());
   }
 }
 

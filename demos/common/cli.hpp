@@ -39,8 +39,8 @@ struct Options {
   std::string scene;
   bool list = false;  ///< --list: print the scenes and exit
   int frames = 0;
-  double dt = 0.0;    ///< 0: the scene's own frame
-  int substeps = 0;   ///< 0: the scene's own ticks per frame
+  double dt = 0.0;   ///< 0: the scene's own frame
+  int substeps = 0;  ///< 0: the scene's own ticks per frame
   scenes::SceneParams params;
   std::string out, render, video, screenshot;
   int width = 0, height = 0;

@@ -49,18 +49,23 @@ int run_headless(const Program& program, const Options& o, const RunHooks& hooks
     if (const StepStats* s = scene->total_stats(); s != nullptr && s->substeps > 0) {
       char text[160];
       std::snprintf(text, sizeof text, "\"substeps_per_frame\": %.2f, \"cg_iterations_per_substep\": %.2f, ",
-                    double(s->substeps) / o.frames, double(s->cg_iterations_step1 + s->cg_iterations_step4) / s->substeps);
+                    double(s->substeps) / o.frames,
+                    double(s->cg_iterations_step1 + s->cg_iterations_step4) / s->substeps);
       stats = text;
     }
     std::printf(
-        "{\"scene\": \"%s\", \"particles\": %lld, \"rigid_bodies\": %lld, \"frames\": %d, \"frame_dt\": %.6g, \"ticks_per_frame\": %d, "
+        "{\"scene\": \"%s\", \"particles\": %lld, \"rigid_bodies\": %lld, \"frames\": %d, \"frame_dt\": %.6g, "
+        "\"ticks_per_frame\": %d, "
         "%s\"wall_ms_per_frame\": %.3f, \"max_hard_binding_drift\": %.3g, \"max_binding_spring_stretch\": %.3g, "
-        "\"deepest_penetration\": %.3g, \"energy_start\": %.6g, \"energy_end\": %.6g, \"finite\": true, \"state_hash\": \"%016llx\"}\n",
-        name.c_str(), static_cast<long long>(now.particles), static_cast<long long>(now.rigid_bodies), o.frames, t.frame_dt, t.substeps,
-        stats.c_str(), wall_ms / o.frames, worst.hard_binding_drift, worst.binding_spring_stretch, worst.deepest_penetration,
-        energy_start, now.energy, static_cast<unsigned long long>(scene->state_hash()));
+        "\"deepest_penetration\": %.3g, \"energy_start\": %.6g, \"energy_end\": %.6g, \"finite\": true, "
+        "\"state_hash\": \"%016llx\"}\n",
+        name.c_str(), static_cast<long long>(now.particles), static_cast<long long>(now.rigid_bodies), o.frames,
+        t.frame_dt, t.substeps, stats.c_str(), wall_ms / o.frames, worst.hard_binding_drift,
+        worst.binding_spring_stretch, worst.deepest_penetration, energy_start, now.energy,
+        static_cast<unsigned long long>(scene->state_hash()));
   } catch (const Error& e) {
-    std::printf("{\"scene\": \"%s\", \"finite\": false, \"error\": \"%s\"}\n", name.c_str(), json_escaped(e.what()).c_str());
+    std::printf("{\"scene\": \"%s\", \"finite\": false, \"error\": \"%s\"}\n", name.c_str(),
+                json_escaped(e.what()).c_str());
     std::fprintf(stderr, "%s: %s\n", program.name, e.what());
     return 1;
   } catch (const std::exception& e) {  // files: a folder that cannot be made, a disk that is full

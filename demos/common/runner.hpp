@@ -11,8 +11,8 @@ namespace sinew::demos {
 
 /// What a program adds to the plain run (sinew-demo's files and pictures).
 struct RunHooks {
-  std::function<void(scenes::Scene&)> before;                          ///< once the scene is built
-  std::function<void(scenes::Scene&, int frame)> after_frame;          ///< frame counted from 1
+  std::function<void(scenes::Scene&)> before;                  ///< once the scene is built
+  std::function<void(scenes::Scene&, int frame)> after_frame;  ///< frame counted from 1
   std::function<void(scenes::Scene&, int frames, double frame_dt)> after;
 };
 

@@ -260,7 +260,8 @@ Vec3 Camera::unproject(double x, double y, double depth, int width, int height) 
   return world.head<3>() / world.w();
 }
 
-Index pick_particle(const System& system, const Camera& camera, double x, double y, double radius, int width, int height, double* depth) {
+Index pick_particle(const System& system, const Camera& camera, double x, double y, double radius, int width,
+                    int height, double* depth) {
   Index best = -1;
   double best_distance = radius, best_depth = 2.0;
   const Particles& p = system.particles();
@@ -301,10 +302,8 @@ void follow(Camera& camera, const Picture& picture) {
 void draw(const Picture& picture, const Camera& camera, int width, int height, Mode mode) {
   glViewport(0, 0, width, height);
   const bool mask = mode == Mode::subject_mask;
-  if (mask)
-    glClearColor(0, 0, 0, 1);
-  else
-    glClearColor(kBackground[0], kBackground[1], kBackground[2], kBackground[3]);
+  if (mask) glClearColor(0, 0, 0, 1);
+  else glClearColor(kBackground[0], kBackground[1], kBackground[2], kBackground[3]);
   glClearStencil(0);
   glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT | GL_STENCIL_BUFFER_BIT);
   glMatrixMode(GL_PROJECTION);
@@ -416,7 +415,8 @@ void write_png(const std::string& path, int width, int height, const std::vector
   std::error_code error;
   if (!parent.empty()) std::filesystem::create_directories(parent, error);
   if (error) fail("write_png: cannot create the folder of '", path, "': ", error.message());
-  if (!stbi_write_png(path.c_str(), width, height, 4, rgba.data(), width * 4)) fail("write_png: cannot write '", path, "'");
+  if (!stbi_write_png(path.c_str(), width, height, 4, rgba.data(), width * 4))
+    fail("write_png: cannot write '", path, "'");
 }
 
 void encode_video(const std::string& frames_dir, int frames, double fps, const std::string& file) {
@@ -424,10 +424,12 @@ void encode_video(const std::string& frames_dir, int frames, double fps, const s
     fail("--video: ffmpeg is not installed (apt-get install ffmpeg); the frames are in ", frames_dir);
   const std::string extension = std::filesystem::path(file).extension().string();
   // -frames:v: a folder used before may hold more frames than this run wrote.
-  const std::string input = "-framerate " + std::to_string(fps) + " -i '" + frames_dir + "/frame_%04d.png' -frames:v " + std::to_string(frames);
+  const std::string input = "-framerate " + std::to_string(fps) + " -i '" + frames_dir + "/frame_%04d.png' -frames:v " +
+                            std::to_string(frames);
   std::string command;
   if (extension == ".gif")
-    command = "ffmpeg -loglevel error -y " + input + " -vf 'split[a][b];[a]palettegen[p];[b][p]paletteuse' '" + file + "'";
+    command =
+        "ffmpeg -loglevel error -y " + input + " -vf 'split[a][b];[a]palettegen[p];[b][p]paletteuse' '" + file + "'";
   else
     command = "ffmpeg -loglevel error -y " + input +
               " -vf 'pad=ceil(iw/2)*2:ceil(ih/2)*2' -c:v libx264 -pix_fmt yuv420p -crf 20 '" + file + "'";

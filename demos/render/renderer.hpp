@@ -75,8 +75,8 @@ struct Camera {
 
 /// The free particle drawn nearest to pixel (x, y), within `radius` pixels, or -1; among equally near
 /// ones the one in front. Its depth (as project gives it) goes to *depth.
-Index pick_particle(const System& system, const Camera& camera, double x, double y, double radius, int width, int height,
-                    double* depth = nullptr);
+Index pick_particle(const System& system, const Camera& camera, double x, double y, double radius, int width,
+                    int height, double* depth = nullptr);
 
 /// A camera that frames the picture's subject (Picture::is_subject) from above and aside.
 Camera framing_camera(const Picture& picture, double aspect);

@@ -15,10 +15,11 @@ std::unique_ptr<Scene> make_bench_curtain(const SceneParams&) {
   return std::make_unique<BenchScene>(bench::make_sinew_curtain(spec, settings), 1.0 / 60.0, 4, spec.rings + 1);
 }
 
-SINEW_REGISTER_SCENE({.name = "bench-curtain",
-                      .description = "the benchmark's curtain in sinew (40 x 40, ten rings on Bullet sliders, implicit springs)",
-                      .kind = SceneKind::bench,
-                      .make = make_bench_curtain});
+SINEW_REGISTER_SCENE(
+    {.name = "bench-curtain",
+     .description = "the benchmark's curtain in sinew (40 x 40, ten rings on Bullet sliders, implicit springs)",
+     .kind = SceneKind::bench,
+     .make = make_bench_curtain});
 
 }  // namespace
 }  // namespace sinew::scenes

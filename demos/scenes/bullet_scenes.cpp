@@ -14,7 +14,8 @@ BulletWorld::BulletWorld(const btVector3& gravity)
       m_dispatcher(std::make_unique<btCollisionDispatcher>(m_configuration.get())),
       m_broadphase(std::make_unique<btDbvtBroadphase>()),
       m_solver(std::make_unique<btSequentialImpulseConstraintSolver>()),
-      m_world(std::make_unique<btDiscreteDynamicsWorld>(m_dispatcher.get(), m_broadphase.get(), m_solver.get(), m_configuration.get())) {
+      m_world(std::make_unique<btDiscreteDynamicsWorld>(m_dispatcher.get(), m_broadphase.get(), m_solver.get(),
+                                                        m_configuration.get())) {
   m_world->setGravity(gravity);
 }
 
@@ -28,7 +29,8 @@ btCollisionShape* BulletWorld::keep(std::unique_ptr<btCollisionShape> shape) {
   return m_shapes.back().get();
 }
 
-btRigidBody* BulletWorld::add_body(btCollisionShape* shape, double mass, const btTransform& at, btVector3 inertia, int group, int mask) {
+btRigidBody* BulletWorld::add_body(btCollisionShape* shape, double mass, const btTransform& at, btVector3 inertia,
+                                   int group, int mask) {
   if (mass > 0 && inertia.isZero()) shape->calculateLocalInertia(btScalar(mass), inertia);
   m_states.push_back(std::make_unique<btDefaultMotionState>(at));
   m_bodies.push_back(std::make_unique<btRigidBody>(
@@ -117,7 +119,8 @@ double BulletScene::total_energy() {
   System& s = system();
   double e = s.potential_energy() + m_world.rigid_energy();
   for (Index i = 0; i < s.particles().size(); ++i)
-    if (s.particles().kind[i] == ParticleKind::free) e += 0.5 * s.particles().mass[i] * s.particles().v.col(i).squaredNorm();
+    if (s.particles().kind[i] == ParticleKind::free)
+      e += 0.5 * s.particles().mass[i] * s.particles().v.col(i).squaredNorm();
   return e;
 }
 
@@ -163,9 +166,11 @@ void triangulate(const btCollisionShape* shape, const btTransform& frame, Bullet
     hull.buildHull(shape->getMargin());
     const Index base = out.vertices.cols();
     out.vertices.conservativeResize(3, base + hull.numVertices());
-    for (int v = 0; v < hull.numVertices(); ++v) out.vertices.col(base + v) = to_eigen(frame * hull.getVertexPointer()[v]);
+    for (int v = 0; v < hull.numVertices(); ++v)
+      out.vertices.col(base + v) = to_eigen(frame * hull.getVertexPointer()[v]);
     for (int t = 0; t + 2 < hull.numIndices(); t += 3)
-      out.triangles.push_back({base + hull.getIndexPointer()[t], base + hull.getIndexPointer()[t + 1], base + hull.getIndexPointer()[t + 2]});
+      out.triangles.push_back({base + hull.getIndexPointer()[t], base + hull.getIndexPointer()[t + 1],
+                               base + hull.getIndexPointer()[t + 2]});
     return;
   }
   if (shape->isConcave()) {

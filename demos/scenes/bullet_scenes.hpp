@@ -44,8 +44,9 @@ class BulletWorld {
   /// Takes ownership of a shape and returns it.
   btCollisionShape* keep(std::unique_ptr<btCollisionShape> shape);
   /// A rigid body; mass 0 makes it static. `inertia` zero means "from the shape".
-  btRigidBody* add_body(btCollisionShape* shape, double mass, const btTransform& at, btVector3 inertia = btVector3(0, 0, 0),
-                        int group = btBroadphaseProxy::DefaultFilter, int mask = btBroadphaseProxy::AllFilter);
+  btRigidBody* add_body(btCollisionShape* shape, double mass, const btTransform& at,
+                        btVector3 inertia = btVector3(0, 0, 0), int group = btBroadphaseProxy::DefaultFilter,
+                        int mask = btBroadphaseProxy::AllFilter);
   btTypedConstraint* add_constraint(std::unique_ptr<btTypedConstraint> constraint);
   const std::vector<btRigidBody*>& bodies() const { return m_body_list; }
   /// Kinetic plus gravitational energy of the dynamic bodies.

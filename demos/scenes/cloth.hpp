@@ -22,9 +22,9 @@ using sinew::VolumeMaterial;
 /// hangs from two fixed anchors by binding springs at its ends; a sideways push starts a swing.
 struct HangingClothSettings {
   ClothGridSettings cloth;
-  double rod_mass = 0.5;                ///< [kg]
-  double binding_stiffness = 1e5;       ///< [N/m], critically damped
-  double initial_speed = 1.0;           ///< sideways (along the cloth normal) [m/s]
+  double rod_mass = 0.5;           ///< [kg]
+  double binding_stiffness = 1e5;  ///< [N/m], critically damped
+  double initial_speed = 1.0;      ///< sideways (along the cloth normal) [m/s]
 };
 
 struct HangingCloth {

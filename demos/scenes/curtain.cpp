@@ -39,7 +39,8 @@ class Curtain final : public BulletScene {
  public:
   Curtain() : BulletScene(btVector3(0, -9.81, 0)) {
     const double rod_y = 2.1, rod_r = 0.015, ring_R = 0.04, ring_r = 0.006, ring_mass = 0.05;
-    btRigidBody* rod = m_world.add_body(m_world.keep(std::make_unique<btCylinderShapeX>(btVector3(btScalar(kRodHalfLength), btScalar(rod_r), btScalar(rod_r)))),
+    btRigidBody* rod = m_world.add_body(m_world.keep(std::make_unique<btCylinderShapeX>(
+                                            btVector3(btScalar(kRodHalfLength), btScalar(rod_r), btScalar(rod_r)))),
                                         0.0, at(btVector3(0, btScalar(rod_y), 0)));
     rod->setFriction(0.15);
     btCollisionShape* ring = ring_shape(m_world, ring_R, ring_r, 16);
@@ -60,7 +61,8 @@ class Curtain final : public BulletScene {
     step.cg_tolerance = 1e-4;
     add_surface("curtain", m_cloth.triangles);
     for (int i = 0; i < 10; ++i) {
-      btRigidBody* body = m_world.add_body(ring, ring_mass, at(btVector3(btScalar(-0.9 + 0.2 * i), btScalar(ring_y), 0)), ring_inertia);
+      btRigidBody* body =
+          m_world.add_body(ring, ring_mass, at(btVector3(btScalar(-0.9 + 0.2 * i), btScalar(ring_y), 0)), ring_inertia);
       body->setFriction(0.15);
       body->setActivationState(DISABLE_DEACTIVATION);
       m_rings.push_back(body);
@@ -99,8 +101,9 @@ class Curtain final : public BulletScene {
 };
 
 SINEW_REGISTER_SCENE(bullet_scene<Curtain>({.name = "curtain",
-                                          .description = "figure 15: a cloth curtain on ten rings sliding along a rod, drawn closed and open by a handle (the main demo)",
-                                          .gallery_frame = 150}));
+                                            .description = "figure 15: a cloth curtain on ten rings sliding along a "
+                                                           "rod, drawn closed and open by a handle (the main demo)",
+                                            .gallery_frame = 150}));
 
 }  // namespace
 }  // namespace sinew::scenes

@@ -17,11 +17,12 @@ class HangingClothScene final : public CoreScene {
   }
 };
 
-SINEW_REGISTER_SCENE({.name = "hanging-cloth",
-                      .description = "a cloth hung from a free rigid rod by binding springs, swinging (core only, 40 x 40)",
-                      .kind = SceneKind::core,
-                      .make = [](const SceneParams& p) { return std::make_unique<HangingClothScene>(p); },
-                      .takes_grid = true});
+SINEW_REGISTER_SCENE(
+    {.name = "hanging-cloth",
+     .description = "a cloth hung from a free rigid rod by binding springs, swinging (core only, 40 x 40)",
+     .kind = SceneKind::core,
+     .make = [](const SceneParams& p) { return std::make_unique<HangingClothScene>(p); },
+     .takes_grid = true});
 
 }  // namespace
 }  // namespace sinew::scenes

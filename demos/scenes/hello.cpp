@@ -26,9 +26,10 @@ class Hello final : public BulletScene {
   }
 };
 
-SINEW_REGISTER_SCENE(bullet_scene<Hello>({.name = "hello",
-                                          .description = "Bullet's hello world (a sphere falling on a ground plane) with a cloth bound to the sphere",
-                                          .gallery_frame = 90}));
+SINEW_REGISTER_SCENE(bullet_scene<Hello>(
+    {.name = "hello",
+     .description = "Bullet's hello world (a sphere falling on a ground plane) with a cloth bound to the sphere",
+     .gallery_frame = 90}));
 
 }  // namespace
 }  // namespace sinew::scenes

@@ -10,12 +10,14 @@ namespace {
 class Net final : public BulletScene {
  public:
   Net() : BulletScene(btVector3(0, -9.81, 0)) {
-    const int n = 6;                  // joints per side
+    const int n = 6;  // joints per side
     const double spacing = 0.3, y = 1.0, rod_r = 0.015, rod_mass = 0.1;
     const double length = spacing - 2 * rod_r;
     const int rods = 4, everything = btBroadphaseProxy::AllFilter;
-    btCollisionShape* along_x = m_world.keep(std::make_unique<btCapsuleShapeX>(btScalar(rod_r), btScalar(length - 2 * rod_r)));
-    btCollisionShape* along_z = m_world.keep(std::make_unique<btCapsuleShapeZ>(btScalar(rod_r), btScalar(length - 2 * rod_r)));
+    btCollisionShape* along_x =
+        m_world.keep(std::make_unique<btCapsuleShapeX>(btScalar(rod_r), btScalar(length - 2 * rod_r)));
+    btCollisionShape* along_z =
+        m_world.keep(std::make_unique<btCapsuleShapeZ>(btScalar(rod_r), btScalar(length - 2 * rod_r)));
     auto joint = [&](int i, int k) { return Vec3((i - 0.5 * (n - 1)) * spacing, y, (k - 0.5 * (n - 1)) * spacing); };
     // The points of each joint, joined in a chain by binding springs.
     std::vector<std::vector<Index>> at_joint(static_cast<std::size_t>(n * n));
@@ -25,7 +27,8 @@ class Net final : public BulletScene {
       // a glancing contact would spin it past what one step integrates well.
       const double transverse = rod_mass * length * length / 12.0;
       btRigidBody* rod = m_world.add_body(shape, rod_mass, at(to_bullet(0.5 * (a + b))),
-                                          btVector3(btScalar(transverse), btScalar(transverse), btScalar(transverse)), rods, everything ^ rods);
+                                          btVector3(btScalar(transverse), btScalar(transverse), btScalar(transverse)),
+                                          rods, everything ^ rods);
       rod->setActivationState(DISABLE_DEACTIVATION);
       for (const Vec3& end : {a, b}) {
         const Index p = system().add_particle(end, Vec3::Zero(), 0.0);
@@ -41,7 +44,8 @@ class Net final : public BulletScene {
         if (k + 1 < n) add_rod(joint(i, k), joint(i, k + 1), along_z);
       }
     for (std::size_t j = 0; j < at_joint.size(); ++j)
-      for (std::size_t a = 1; a < at_joint[j].size(); ++a) system().add_binding_spring({at_joint[j][a - 1], at_joint[j][a], 2e5, 1.0});
+      for (std::size_t a = 1; a < at_joint[j].size(); ++a)
+        system().add_binding_spring({at_joint[j][a - 1], at_joint[j][a], 2e5, 1.0});
     for (auto [i, k] : {std::pair{0, 0}, std::pair{0, n - 1}, std::pair{n - 1, 0}, std::pair{n - 1, n - 1}}) {
       const Index anchor = system().add_kinematic_particle(joint(i, k));
       system().add_binding_spring({anchor, at_joint[static_cast<std::size_t>(i * n + k)].front(), 2e5, 1.0});
@@ -60,9 +64,11 @@ class Net final : public BulletScene {
   btRigidBody* m_ball = nullptr;
 };
 
-SINEW_REGISTER_SCENE(bullet_scene<Net>({.name = "net",
-                                          .description = "figure 13: a net of rigid rods joined by binding springs, held at its corners, catching a 5 kg ball",
-                                          .gallery_frame = 100}));
+SINEW_REGISTER_SCENE(bullet_scene<Net>(
+    {.name = "net",
+     .description =
+         "figure 13: a net of rigid rods joined by binding springs, held at its corners, catching a 5 kg ball",
+     .gallery_frame = 100}));
 
 }  // namespace
 }  // namespace sinew::scenes

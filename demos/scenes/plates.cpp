@@ -9,7 +9,8 @@ class Plates final : public BulletScene {
  public:
   Plates() : BulletScene(btVector3(0, -9.81, 0)) {
     const double width = 0.6, gap = 0.35, thick = 0.02, plate_mass = 0.4;
-    btCollisionShape* plate = m_world.keep(std::make_unique<btBoxShape>(btVector3(btScalar(width / 2), btScalar(thick / 2), btScalar(width / 2))));
+    btCollisionShape* plate = m_world.keep(
+        std::make_unique<btBoxShape>(btVector3(btScalar(width / 2), btScalar(thick / 2), btScalar(width / 2))));
     btCollisionShape* holder = m_world.keep(std::make_unique<btBoxShape>(btVector3(0.04, 0.04, 0.04)));
     const double top = 2.0;
     std::vector<btRigidBody*> plates;
@@ -50,8 +51,9 @@ class Plates final : public BulletScene {
 };
 
 SINEW_REGISTER_SCENE(bullet_scene<Plates>({.name = "plates",
-                                          .description = "figure 14: three rigid plates joined by hard-bound cloth sheets, hung from two Bullet point constraints, swinging",
-                                          .gallery_frame = 150}));
+                                           .description = "figure 14: three rigid plates joined by hard-bound cloth "
+                                                          "sheets, hung from two Bullet point constraints, swinging",
+                                           .gallery_frame = 150}));
 
 }  // namespace
 }  // namespace sinew::scenes

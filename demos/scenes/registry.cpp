@@ -34,7 +34,8 @@ bool register_scene(SceneInfo info) {
   if (info.description.empty() || info.description.find('\n') != std::string::npos)
     fail("scene registry: scene '", info.name, "' needs a one-line description");
   if (!info.make) fail("scene registry: scene '", info.name, "' has no factory");
-  if (info.gallery_frame < 0) fail("scene registry: scene '", info.name, "': gallery_frame ", info.gallery_frame, " is negative");
+  if (info.gallery_frame < 0)
+    fail("scene registry: scene '", info.name, "': gallery_frame ", info.gallery_frame, " is negative");
   for (const SceneInfo& s : registry())
     if (s.name == info.name) fail("scene registry: scene '", info.name, "' is registered twice");
   registry().push_back(std::move(info));
@@ -51,7 +52,8 @@ const SceneInfo& find_scene(const std::string& name) {
 
 std::unique_ptr<Scene> make_scene(const std::string& name, const SceneParams& params) {
   const SceneInfo& info = find_scene(name);
-  if (!info.takes_grid && (params.nx != 0 || params.ny != 0)) fail("scene '", name, "' has a fixed cloth: --nx and --ny do not apply");
+  if (!info.takes_grid && (params.nx != 0 || params.ny != 0))
+    fail("scene '", name, "' has a fixed cloth: --nx and --ny do not apply");
   if (params.nx < 0 || params.ny < 0 || params.nx == 1 || params.ny == 1)
     fail("scene '", name, "': --nx ", params.nx, " and --ny ", params.ny, " must be at least 2");
   return info.make(params);

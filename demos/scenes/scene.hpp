@@ -111,6 +111,6 @@ class CoreScene : public Scene {
 /// line in the scene's own file. The file must reach the program as
 /// an object file (demos/CMakeLists.txt's OBJECT scene libraries, or a test's own sources): a static
 /// archive would drop it, since nothing refers to it by name.
-#define SINEW_REGISTER_SCENE(...)                                                                \
+#define SINEW_REGISTER_SCENE(...)                                                               \
   [[maybe_unused]] static const bool SINEW_SCENE_CONCAT(sinew_scene_registered_, __COUNTER__) = \
       ::sinew::scenes::register_scene(__VA_ARGS__)

@@ -13,7 +13,8 @@ bool register_stability_cases() {
                     .kind = SceneKind::bench,
                     .make = [c](const SceneParams&) -> std::unique_ptr<Scene> {
                       const Index bodies = c.drop ? 1 : c.curtain.rings + 1;  // the plate, or the rod and rings
-                      return std::make_unique<BenchScene>(bench::make_stability_run(c, "sinew"), c.frame_dt, c.steps, bodies);
+                      return std::make_unique<BenchScene>(bench::make_stability_run(c, "sinew"), c.frame_dt, c.steps,
+                                                          bodies);
                     }});
   return true;
 }

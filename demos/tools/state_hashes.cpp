@@ -20,7 +20,9 @@ namespace {
 
 using namespace sinew;
 
-void print(const std::string& name, std::uint64_t h) { std::printf("%-64s %016llx\n", name.c_str(), static_cast<unsigned long long>(h)); }
+void print(const std::string& name, std::uint64_t h) {
+  std::printf("%-64s %016llx\n", name.c_str(), static_cast<unsigned long long>(h));
+}
 
 std::uint64_t curtain_hash(bench::CurtainRun& run, int frames, double frame_dt, int ticks) {
   for (int f = 0; f < frames; ++f) run.advance(frame_dt, ticks);
@@ -62,8 +64,12 @@ int main(int argc, char** argv) {
       int threads;
     };
     const BenchSetting bench_settings[] = {
-        {"sinew", 20, 4, 1e-9, 1},           {"sinew-implicit", 20, 1, 1e-3, 1}, {"sinew-implicit", 40, 4, 1e-5, 1},
-        {"sinew-implicit-bending", 20, 1, 1e-2, 1}, {"sinew-multigrid", 40, 1, 1e-2, 1}, {"sinew-multigrid", 40, 1, 1e-2, 2},
+        {"sinew", 20, 4, 1e-9, 1},
+        {"sinew-implicit", 20, 1, 1e-3, 1},
+        {"sinew-implicit", 40, 4, 1e-5, 1},
+        {"sinew-implicit-bending", 20, 1, 1e-2, 1},
+        {"sinew-multigrid", 40, 1, 1e-2, 1},
+        {"sinew-multigrid", 40, 1, 1e-2, 2},
         {"sinew-multigrid", 100, 1, 1e-2, 2},
     };
     for (const BenchSetting& b : bench_settings) {
@@ -78,7 +84,8 @@ int main(int argc, char** argv) {
       spec.bending_implicit = settings.multigrid || system == "sinew-implicit-bending";
       auto run = bench::make_sinew_curtain(spec, settings);
       char name[160];
-      std::snprintf(name, sizeof name, "bench/%s/n%d/ticks%d/tol%g/threads%d", b.system, b.n, b.ticks, b.tol, b.threads);
+      std::snprintf(name, sizeof name, "bench/%s/n%d/ticks%d/tol%g/threads%d", b.system, b.n, b.ticks, b.tol,
+                    b.threads);
       print(name, curtain_hash(*run, frames / 2, 1.0 / 60.0, b.ticks));
     }
 
@@ -86,7 +93,8 @@ int main(int argc, char** argv) {
     for (const bench::StabilityCase& c : bench::stability_cases())
       for (const char* system : {"sinew", "sinew-multigrid"}) {
         auto run = bench::make_stability_run(c, system);
-        print("stability/" + c.name + "/" + system, curtain_hash(*run, std::min(frames / 2, c.frames), c.frame_dt, c.steps));
+        print("stability/" + c.name + "/" + system,
+              curtain_hash(*run, std::min(frames / 2, c.frames), c.frame_dt, c.steps));
       }
   } catch (const sinew::Error& e) {
     std::fprintf(stderr, "sinew-hashes: %s\n", e.what());

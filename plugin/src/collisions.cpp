@@ -64,8 +64,8 @@ struct ClosestTriangle : btTriangleCallback {
 
 }  // namespace
 
-bool signed_distance(const btCollisionShape* shape, const btTransform& frame, const Vec3& x, double reach,
-                     double& phi, Vec3& normal) {
+bool signed_distance(const btCollisionShape* shape, const btTransform& frame, const Vec3& x, double reach, double& phi,
+                     Vec3& normal) {
   const btMatrix3x3& basis = frame.getBasis();
   const Vec3 local = to_eigen(frame.invXform(to_bullet(x)));
   auto to_world = [&](const Vec3& n) { return to_eigen(basis * to_bullet(n)); };
@@ -96,7 +96,8 @@ bool signed_distance(const btCollisionShape* shape, const btTransform& frame, co
       for (int i = 0; i < compound->getNumChildShapes(); ++i) {
         double child_phi;
         Vec3 child_normal;
-        if (!signed_distance(compound->getChildShape(i), frame * compound->getChildTransform(i), x, reach, child_phi, child_normal))
+        if (!signed_distance(compound->getChildShape(i), frame * compound->getChildTransform(i), x, reach, child_phi,
+                             child_normal))
           continue;
         if (!found || child_phi < phi) {
           phi = child_phi;
@@ -106,13 +107,14 @@ bool signed_distance(const btCollisionShape* shape, const btTransform& frame, co
       }
       return found;
     }
-    default:
-      break;
+    default: break;
   }
   if (shape->isConvex()) {
     btGjkEpaSolver2::sResults result;
-    const btScalar d = btGjkEpaSolver2::SignedDistance(to_bullet(x), btScalar(0), static_cast<const btConvexShape*>(shape), frame, result);
-    if (result.status == btGjkEpaSolver2::sResults::GJK_Failed || result.status == btGjkEpaSolver2::sResults::EPA_Failed)
+    const btScalar d = btGjkEpaSolver2::SignedDistance(to_bullet(x), btScalar(0),
+                                                       static_cast<const btConvexShape*>(shape), frame, result);
+    if (result.status == btGjkEpaSolver2::sResults::GJK_Failed ||
+        result.status == btGjkEpaSolver2::sResults::EPA_Failed)
       return false;
     phi = static_cast<double>(d);
     normal = to_eigen(result.normal);  // outward, from the surface towards the point
@@ -126,7 +128,8 @@ bool signed_distance(const btCollisionShape* shape, const btTransform& frame, co
     closest.p = local;
     const btScalar s = static_cast<btScalar>(reach);
     const btVector3 r{s, s, s};
-    static_cast<const btConcaveShape*>(shape)->processAllTriangles(&closest, to_bullet(local) - r, to_bullet(local) + r);
+    static_cast<const btConcaveShape*>(shape)->processAllTriangles(&closest, to_bullet(local) - r,
+                                                                   to_bullet(local) + r);
     if (!std::isfinite(closest.best)) return false;
     const double d = std::sqrt(closest.best);
     phi = d;
@@ -157,20 +160,23 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
   for (int o = 0; o < objects.size(); ++o) {
     const btVector3& lo = m_aabb_min[o];
     const btVector3& hi = m_aabb_max[o];
-    if (p.x() < lo.x() || p.y() < lo.y() || p.z() < lo.z() || p.x() > hi.x() || p.y() > hi.y() || p.z() > hi.z()) continue;
+    if (p.x() < lo.x() || p.y() < lo.y() || p.z() < lo.z() || p.x() > hi.x() || p.y() > hi.y() || p.z() > hi.z())
+      continue;
     if (const btBroadphaseProxy* proxy = objects[o]->getBroadphaseHandle())
       if (!c.geometry->collides(i, static_cast<std::uint32_t>(proxy->m_collisionFilterGroup),
                                 static_cast<std::uint32_t>(proxy->m_collisionFilterMask)))
         continue;
     double d;
     Vec3 n;
-    if (!signed_distance(objects[o]->getCollisionShape(), objects[o]->getWorldTransform(), x.col(i), thickness, d, n)) continue;
+    if (!signed_distance(objects[o]->getCollisionShape(), objects[o]->getWorldTransform(), x.col(i), thickness, d, n))
+      continue;
     if (d < 0.0 && d < phi) {
       // Entered this step: push back out through the side the particle came from, so a thin body
       // is not crossed by projecting to its far face.
       double d_n;
       Vec3 n_n;
-      if (signed_distance(objects[o]->getCollisionShape(), objects[o]->getWorldTransform(), c.x_n->col(i), thickness, d_n, n_n) &&
+      if (signed_distance(objects[o]->getCollisionShape(), objects[o]->getWorldTransform(), c.x_n->col(i), thickness,
+                          d_n, n_n) &&
           d_n > 0.0) {
         n = n_n;
         d = d_n + n_n.dot(x.col(i) - c.x_n->col(i));
@@ -205,7 +211,8 @@ void BulletCollisions::process(CollisionContext& c) {
   const Particles& particles = *c.particles;
   for (Index i = 0; i < particles.size(); ++i) {
     const ParticleKind kind = particles.kind[i];
-    if (kind != ParticleKind::free && kind != ParticleKind::soft_spring && kind != ParticleKind::soft_synchronized) continue;
+    if (kind != ParticleKind::free && kind != ParticleKind::soft_spring && kind != ParticleKind::soft_synchronized)
+      continue;
     double phi;
     Vec3 normal;
     const int hit = closest_object(c, i, phi, normal);
@@ -258,7 +265,8 @@ void BulletCollisions::process(CollisionContext& c) {
       continue;
     }
     auto pending = std::find_if(m_pending.begin(), m_pending.end(), [&](const Pending& p) { return p.body == rigid; });
-    if (pending == m_pending.end()) pending = m_pending.insert(m_pending.end(), {rigid, btVector3(0, 0, 0), btVector3(0, 0, 0)});
+    if (pending == m_pending.end())
+      pending = m_pending.insert(m_pending.end(), {rigid, btVector3(0, 0, 0), btVector3(0, 0, 0)});
     pending->impulse -= to_bullet(j);
     pending->torque_impulse -= arm.cross(to_bullet(j));
   }

@@ -124,7 +124,8 @@ Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m
     g_registry.emplace_back(world, this);
   }
   if (settings.collisions) {
-    auto collisions = std::make_unique<BulletCollisions>(world, CollisionSettings{settings.thickness, settings.friction}, &m_rigid_particles);
+    auto collisions = std::make_unique<BulletCollisions>(
+        world, CollisionSettings{settings.thickness, settings.friction}, &m_rigid_particles);
     m_collisions = collisions.get();
     m_system.add_collision_source(std::move(collisions));
   }
@@ -138,8 +139,9 @@ Coupling::~Coupling() {
   m_world->setInternalTickCallback(m_app_pre_tick, m_world->getWorldUserInfo(), true);
   m_world->setInternalTickCallback(m_app_post_tick, m_world->getWorldUserInfo(), false);
   std::lock_guard<std::mutex> lock(g_registry_mutex);
-  g_registry.erase(std::remove_if(g_registry.begin(), g_registry.end(), [this](const auto& e) { return e.second == this; }),
-                   g_registry.end());
+  g_registry.erase(
+      std::remove_if(g_registry.begin(), g_registry.end(), [this](const auto& e) { return e.second == this; }),
+      g_registry.end());
 }
 
 double Coupling::deepest_penetration() const { return m_collisions ? m_collisions->deepest_penetration() : 0.0; }
@@ -239,7 +241,8 @@ void Coupling::copy_state_in() {
   RigidBodyParticles& bodies = m_system.rigid_bodies();
   const Index count = static_cast<Index>(m_bodies.size());
   if (m_v_in.cols() != count) {
-    for (Vectors3* a : {&m_v_in, &m_w_in, &m_x_in, &m_v_next, &m_w_next, &m_v_position, &m_w_position}) a->setZero(3, count);
+    for (Vectors3* a : {&m_v_in, &m_w_in, &m_x_in, &m_v_next, &m_w_next, &m_v_position, &m_w_position})
+      a->setZero(3, count);
     m_q_in.assign(static_cast<std::size_t>(count), Quat::Identity());
   }
   for (Index b = 0; b < count; ++b) {
@@ -317,8 +320,10 @@ void Coupling::copy_joints_in(double dt) {
     const int rows = info1.m_numConstraintRows;
     if (rows <= 0) continue;
     const btTypedConstraint::btConstraintInfo2 info2 = joint_info2(*joint, rows, solver, dt, m_joint_buffer);
-    const Vec6 twist_a = (Vec6() << to_eigen(body_a.getLinearVelocity()), to_eigen(body_a.getAngularVelocity())).finished();
-    const Vec6 twist_b = (Vec6() << to_eigen(body_b.getLinearVelocity()), to_eigen(body_b.getAngularVelocity())).finished();
+    const Vec6 twist_a =
+        (Vec6() << to_eigen(body_a.getLinearVelocity()), to_eigen(body_a.getAngularVelocity())).finished();
+    const Vec6 twist_b =
+        (Vec6() << to_eigen(body_b.getLinearVelocity()), to_eigen(body_b.getAngularVelocity())).finished();
     for (int r = 0; r < rows; ++r) {
       if (!is_equality_row(info2, r, solver.m_globalCfm)) continue;
       const JointRow row = joint_row(info2, r, a, b, twist_a, twist_b);

@@ -23,7 +23,8 @@ MeshShape triangle_mesh_shape(const Vectors3& vertices, const std::vector<std::a
   out.triangles = std::make_unique<btTriangleMesh>(true, false);
   for (std::size_t t = 0; t < triangles.size(); ++t) {
     for (Index v : triangles[t])
-      if (v < 0 || v >= vertices.cols()) fail("triangle mesh shape: triangle ", t, " refers to vertex ", v, ", which does not exist");
+      if (v < 0 || v >= vertices.cols())
+        fail("triangle mesh shape: triangle ", t, " refers to vertex ", v, ", which does not exist");
     out.triangles->addTriangle(to_bullet(vertices.col(triangles[t][0])), to_bullet(vertices.col(triangles[t][1])),
                                to_bullet(vertices.col(triangles[t][2])), false);
   }

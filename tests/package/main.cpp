@@ -43,7 +43,9 @@ int main() {
     for (int i = 0; i < 60; ++i) world.stepSimulation(1.0 / 60, 4, 1.0 / 240);
     const btVector3 expected = box.getCenterOfMassTransform() * btVector3(0.1, -0.1, 0);
     const double error = (btVector3(coupling.system().particles().x(0, p), coupling.system().particles().x(1, p),
-                                    coupling.system().particles().x(2, p)) - expected).length();
+                                    coupling.system().particles().x(2, p)) -
+                          expected)
+                             .length();
     std::printf("bound point error %g m\n", error);
     status = error < 1e-9 ? 0 : 1;
   }

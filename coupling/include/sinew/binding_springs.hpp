@@ -38,7 +38,9 @@ class BindingSprings {
   double damping(Index s) const { return m_c[s]; }
 
   /// Switches a spring off (it then exerts nothing) or back on.
-  void set_active(Index s, bool active) { m_k_active[s] = active ? m_k[s] : 0.0, m_c_active[s] = active ? m_c[s] : 0.0, m_active[s] = active; }
+  void set_active(Index s, bool active) {
+    m_k_active[s] = active ? m_k[s] : 0.0, m_c_active[s] = active ? m_c[s] : 0.0, m_active[s] = active;
+  }
   /// Switches a spring off for good: its index stays reserved, its ends are no longer checked or used.
   void remove(Index s) {
     set_active(s, false);

@@ -11,17 +11,17 @@ namespace sinew {
 
 /// What a cloth is made of; only the forces with a non-zero stiffness are added.
 struct ClothMaterial {
-  double mass = 0.5;                   ///< total [kg], lumped by area
-  double stretch_stiffness = 200.0;    ///< edge springs k [N/m]; 0 leaves them out
-  double stretch_damping = 0.05;       ///< edge springs b [N s/m]
-  double bending_stiffness = 1e-4;     ///< dihedral bending k_b [N m]; 0 leaves it out
+  double mass = 0.5;                 ///< total [kg], lumped by area
+  double stretch_stiffness = 200.0;  ///< edge springs k [N/m]; 0 leaves them out
+  double stretch_damping = 0.05;     ///< edge springs b [N s/m]
+  double bending_stiffness = 1e-4;   ///< dihedral bending k_b [N m]; 0 leaves it out
   double bending_damping = 0.0;
   /// DihedralBendingSettings::implicit: with StepSettings::implicit_elasticity, bending joins the
   /// solves (its Gauss-Newton differential) and stops limiting the substep.
   bool bending_implicit = false;
-  double membrane_mu = 0.0;            ///< StVK membrane [N/m]; 0 leaves it out
+  double membrane_mu = 0.0;  ///< StVK membrane [N/m]; 0 leaves it out
   double membrane_lambda = 0.0;
-  double membrane_damping = 0.0;       ///< strain-rate damping [s]
+  double membrane_damping = 0.0;  ///< strain-rate damping [s]
 };
 
 struct ClothGridSettings : ClothMaterial {
@@ -42,10 +42,10 @@ std::vector<Index> add_cloth_mesh(System& system, const Vectors3& vertices,
 /// A soft volume from a tet mesh: one particle per vertex with volume-lumped mass, and corotated
 /// linear FEM with inversion handling. Returns the particle of each vertex.
 struct VolumeMaterial {
-  double density = 1000.0;       ///< [kg/m^3]
-  double young_modulus = 5e4;    ///< [Pa]
+  double density = 1000.0;     ///< [kg/m^3]
+  double young_modulus = 5e4;  ///< [Pa]
   double poisson_ratio = 0.3;
-  double damping = 0.01;         ///< stiffness-proportional damping [s]
+  double damping = 0.01;  ///< stiffness-proportional damping [s]
 };
 std::vector<Index> add_volume(System& system, const Vectors3& vertices, const std::vector<std::array<Index, 4>>& tets,
                               const VolumeMaterial& material);

@@ -60,7 +60,8 @@ struct CollisionGeometry {
 
   /// True when particle i and a thing with filter (group, mask) may collide.
   bool collides(Index i, std::uint32_t other_group, std::uint32_t other_mask) const {
-    return (group[static_cast<std::size_t>(i)] & other_mask) != 0 && (other_group & mask[static_cast<std::size_t>(i)]) != 0;
+    return (group[static_cast<std::size_t>(i)] & other_mask) != 0 &&
+           (other_group & mask[static_cast<std::size_t>(i)]) != 0;
   }
 };
 
@@ -101,6 +102,7 @@ class CollisionSource {
 };
 
 /// A collision source from a function (tests, applications with their own contact code).
-std::unique_ptr<CollisionSource> make_collision_source(std::string name, std::function<void(CollisionContext&)> process);
+std::unique_ptr<CollisionSource> make_collision_source(std::string name,
+                                                       std::function<void(CollisionContext&)> process);
 
 }  // namespace sinew

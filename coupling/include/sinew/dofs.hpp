@@ -34,9 +34,7 @@ namespace sinew {
 enum class ParticleKind : std::uint8_t { free, kinematic, hard_bound, soft_spring, soft_synchronized, removed };
 
 /// True for rows whose velocity is an unknown of the implicit solves.
-inline bool is_dynamic(ParticleKind kind) {
-  return kind == ParticleKind::free || kind == ParticleKind::soft_spring;
-}
+inline bool is_dynamic(ParticleKind kind) { return kind == ParticleKind::free || kind == ParticleKind::soft_spring; }
 
 /// One vector of the implicit solves: particle velocities (3 x N) and rigid twists (6 x R, linear
 /// velocity in rows 0-2, angular velocity in rows 3-5).

@@ -83,7 +83,10 @@ class Force {
   /// stiffest element and the lightest particle it touches (masses m, infinite for kinematic or
   /// zero for hard-bound rows, in which case effective masses m_eff are used). Returns +inf when
   /// the force imposes no restriction.
-  virtual double stable_dt(const VectorXd& m_eff) const { (void)m_eff; return kInfinity; }
+  virtual double stable_dt(const VectorXd& m_eff) const {
+    (void)m_eff;
+    return kInfinity;
+  }
 
   /// The blocks of D + b K+ for the preconditioners, when the force offers them (see
   /// implicit_blocks.hpp for what the step does without them). A force that offers them usually

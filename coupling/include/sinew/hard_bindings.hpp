@@ -89,7 +89,9 @@ class HardBindings {
   /// 1/m_e (eq. 4) of every bound row into inverse_mass (per particle), from the parents' masses.
   void inverse_effective_masses(const VectorXd& mass, const RigidBodyParticles& bodies, VectorXd& inverse_mass) const;
   /// Merges the points' masses into their rigid bodies (RigidBindings::absorb_masses).
-  void absorb_masses_into_bodies(const VectorXd& mass, RigidBodyParticles& bodies) { m_rigid.absorb_masses(mass, bodies); }
+  void absorb_masses_into_bodies(const VectorXd& mass, RigidBodyParticles& bodies) {
+    m_rigid.absorb_masses(mass, bodies);
+  }
   /// Takes them out again (RigidBindings::release_masses), before bindings change.
   void release_masses_from_bodies(RigidBodyParticles& bodies) { m_rigid.release_masses(bodies); }
   /// Largest |x_e - W x_parents| over every binding.

@@ -185,7 +185,9 @@ class ChunkedScatter {
   /// count elements, element e's nodes nodes_of(e) (any range of Index).
   template <typename NodesOf>
   ChunkedScatter(Index count, Index nodes, NodesOf&& nodes_of) : m_nodes(nodes) {
-    const Index chunks = count < parallel::kMinChunkedElements ? 1 : std::min<Index>(8, std::max<Index>(2, count / (parallel::kMinChunkedElements / 2)));
+    const Index chunks = count < parallel::kMinChunkedElements
+                             ? 1
+                             : std::min<Index>(8, std::max<Index>(2, count / (parallel::kMinChunkedElements / 2)));
     for (Index c = 0; c < chunks; ++c) {
       Chunk chunk{count * c / chunks, count * (c + 1) / chunks, nodes, 0};
       for (Index e = chunk.begin; e < chunk.end; ++e)
@@ -199,7 +201,8 @@ class ChunkedScatter {
     m_direct = chunks >= 4;
     for (std::size_t a = 0; a < m_chunks.size(); ++a)
       for (std::size_t b = a + 2; b < m_chunks.size(); b += 2)
-        if (m_chunks[a].node_begin < m_chunks[b].node_end && m_chunks[b].node_begin < m_chunks[a].node_end) m_direct = false;
+        if (m_chunks[a].node_begin < m_chunks[b].node_end && m_chunks[b].node_begin < m_chunks[a].node_end)
+          m_direct = false;
     if (chunks > 1 && !m_direct) m_buffers.assign(static_cast<std::size_t>(chunks), Vectors3::Zero(3, nodes));
   }
 
@@ -226,7 +229,8 @@ class ScatterGather {
     std::vector<Index> fill(m_offset.begin(), m_offset.end() - 1);
     for (std::size_t e = 0; e < elements.size(); ++e)
       for (std::size_t a = 0; a < K; ++a)
-        m_slot[static_cast<std::size_t>(fill[static_cast<std::size_t>(elements[e][a])]++)] = static_cast<Index>(K * e + a);
+        m_slot[static_cast<std::size_t>(fill[static_cast<std::size_t>(elements[e][a])]++)] =
+            static_cast<Index>(K * e + a);
     m_values.setZero(3, static_cast<Index>(K * elements.size()));
     m_nodes = nodes;
   }

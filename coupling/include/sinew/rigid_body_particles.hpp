@@ -10,23 +10,23 @@
 namespace sinew {
 
 struct RigidBodySettings {
-  Vec3 x = Vec3::Zero();             ///< centre of mass, world [m]
-  Quat q = Quat::Identity();         ///< orientation of the principal frame
-  Vec3 v = Vec3::Zero();             ///< linear velocity of the centre of mass [m/s]
-  Vec3 w = Vec3::Zero();             ///< angular velocity, world [rad/s]
-  double mass = 1.0;                 ///< [kg]; ignored for kinematic bodies
-  Vec3 inertia = Vec3::Ones();       ///< principal moments I0 in the principal frame [kg m^2]
-  bool kinematic = false;            ///< prescribed motion (static when v = w = 0), infinite mass
-  bool gravity = true;               ///< false when another solver (Bullet) already applies gravity
+  Vec3 x = Vec3::Zero();        ///< centre of mass, world [m]
+  Quat q = Quat::Identity();    ///< orientation of the principal frame
+  Vec3 v = Vec3::Zero();        ///< linear velocity of the centre of mass [m/s]
+  Vec3 w = Vec3::Zero();        ///< angular velocity, world [rad/s]
+  double mass = 1.0;            ///< [kg]; ignored for kinematic bodies
+  Vec3 inertia = Vec3::Ones();  ///< principal moments I0 in the principal frame [kg m^2]
+  bool kinematic = false;       ///< prescribed motion (static when v = w = 0), infinite mass
+  bool gravity = true;          ///< false when another solver (Bullet) already applies gravity
 };
 
 struct RigidBodyParticles {
-  Vectors3 x;                 ///< centres of mass (3 x R)
-  std::vector<Quat> q;        ///< orientations of the principal frames
-  Vectors3 v;                 ///< linear velocities (3 x R)
-  Vectors3 w;                 ///< angular velocities, world (3 x R)
-  VectorXd mass;              ///< +inf for kinematic bodies
-  Vectors3 inertia;           ///< principal moments I0 (3 x R); +inf for kinematic bodies
+  Vectors3 x;           ///< centres of mass (3 x R)
+  std::vector<Quat> q;  ///< orientations of the principal frames
+  Vectors3 v;           ///< linear velocities (3 x R)
+  Vectors3 w;           ///< angular velocities, world (3 x R)
+  VectorXd mass;        ///< +inf for kinematic bodies
+  Vectors3 inertia;     ///< principal moments I0 (3 x R); +inf for kinematic bodies
   std::vector<std::uint8_t> kinematic;
   std::vector<std::uint8_t> gravity;
   /// Applied force and torque about the centre of mass, world (3 x R) [N], [N m], held constant over

@@ -27,11 +27,11 @@ namespace sinew {
 enum class SoftCoupling : std::uint8_t { spring, synchronized };
 
 struct SoftBindingSettings {
-  Index particle = -1;                        ///< the soft particle (must not be bound otherwise)
-  Index target = -1;                          ///< a free or hard-bound particle row
+  Index particle = -1;  ///< the soft particle (must not be bound otherwise)
+  Index target = -1;    ///< a free or hard-bound particle row
   SoftCoupling coupling = SoftCoupling::spring;
-  double stiffness = 1e4;                     ///< binding spring k [N/m] (spring coupling)
-  double damping_ratio = 1.0;                 ///< zeta, 1 = critical from effective masses
+  double stiffness = 1e4;      ///< binding spring k [N/m] (spring coupling)
+  double damping_ratio = 1.0;  ///< zeta, 1 = critical from effective masses
   /// Mass of the soft particle; 0 means the target's effective mass (required when the target has
   /// infinite mass, i.e. it is kinematic or on a kinematic frame).
   double mass = 0.0;
@@ -41,7 +41,7 @@ struct SoftBindings {
   std::vector<Index> particle;
   std::vector<Index> target;
   std::vector<SoftCoupling> coupling;
-  std::vector<Index> spring;        ///< binding spring index (spring coupling), -1 otherwise
+  std::vector<Index> spring;  ///< binding spring index (spring coupling), -1 otherwise
   std::vector<double> mass_override;
 
   Index size() const { return static_cast<Index>(particle.size()); }

@@ -23,13 +23,13 @@ struct PhaseTimes {
 
 struct StepStats {
   int substeps = 0;
-  double dt = 0;                       ///< the substep used
-  int cg_iterations_step1 = 0;         ///< summed over substeps
+  double dt = 0;                ///< the substep used
+  int cg_iterations_step1 = 0;  ///< summed over substeps
   int cg_iterations_step4 = 0;
-  int newton_iterations = 0;           ///< StepSettings::newton_iterations done (their CG iterations count in step 1's)
-  double cg_residual = 0;              ///< largest final residual [m/s] over all solves
-  bool cg_converged = true;            ///< every solve reached the tolerance
-  bool linear_solve = false;           ///< false when the scene has no implicit term (diagonal solve)
+  int newton_iterations = 0;  ///< StepSettings::newton_iterations done (their CG iterations count in step 1's)
+  double cg_residual = 0;     ///< largest final residual [m/s] over all solves
+  bool cg_converged = true;   ///< every solve reached the tolerance
+  bool linear_solve = false;  ///< false when the scene has no implicit term (diagonal solve)
   /// dt * sum of the forces mapped onto soft-bound particles in step 4: the momentum the mapping adds
   /// to the system (section 3: soft particles duplicate mass, and the mapping duplicates momentum).
   Vec3 mapped_impulse = Vec3::Zero();

@@ -297,11 +297,11 @@ class System {
   std::vector<std::unique_ptr<Force>> m_forces;
   std::vector<std::unique_ptr<CollisionSource>> m_collision_sources;
   CollisionGeometry m_geometry;
-  VectorXd m_inverse_effective_mass;  // per row, 0 for infinite mass
-  VectorXd m_effective_mass;          // per row, +inf for kinematic, m_e for bound rows
+  VectorXd m_inverse_effective_mass;      // per row, 0 for infinite mass
+  VectorXd m_effective_mass;              // per row, +inf for kinematic, m_e for bound rows
   std::vector<double> m_force_stable_dt;  // Force::stable_dt per force at these masses (stable_dt())
   bool m_finalized = false;
-  bool m_topology_changed = false;        // the topology changed since set-up: redo it before the next step
+  bool m_topology_changed = false;         // the topology changed since set-up: redo it before the next step
   std::vector<ParticleKind> m_input_kind;  // free or kinematic, as created
   double m_time = 0.0;
   std::unique_ptr<Newmark> m_newmark;

@@ -1,10 +1,10 @@
 #include "sinew/mesh/mesh_io.hpp"
 
-#include <assimp/Exporter.hpp>
-#include <assimp/Importer.hpp>
 #include <assimp/config.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
+#include <assimp/Exporter.hpp>
+#include <assimp/Importer.hpp>
 
 #include <algorithm>
 #include <filesystem>
@@ -45,9 +45,9 @@ TriangleMesh load_triangle_mesh(const std::string& path) {
   // that share a position are joined (STL and flat-shaded files repeat them per face).
   importer.SetPropertyInteger(AI_CONFIG_PP_RVC_FLAGS, aiComponent_NORMALS | aiComponent_TANGENTS_AND_BITANGENTS |
                                                           aiComponent_TEXCOORDS | aiComponent_COLORS);
-  const aiScene* scene = importer.ReadFile(path, aiProcess_RemoveComponent | aiProcess_Triangulate |
-                                                     aiProcess_JoinIdenticalVertices | aiProcess_FindDegenerates |
-                                                     aiProcess_SortByPType);
+  const aiScene* scene =
+      importer.ReadFile(path, aiProcess_RemoveComponent | aiProcess_Triangulate | aiProcess_JoinIdenticalVertices |
+                                  aiProcess_FindDegenerates | aiProcess_SortByPType);
   if (!scene || !scene->mRootNode) fail("mesh file '", path, "': ", importer.GetErrorString());
   TriangleMesh out;
   std::vector<Vec3> vertices;
@@ -64,15 +64,15 @@ TriangleMesh load_triangle_mesh(const std::string& path) {
 void save_triangle_meshes(const std::string& path, const std::vector<TriangleMesh>& meshes,
                           const std::vector<std::string>& names) {
   const std::string extension = std::filesystem::path(path).extension().string();
-  const std::map<std::string, std::string> formats{{".obj", "obj"}, {".ply", "ply"}, {".stl", "stl"},
-                                                   {".gltf", "gltf2"}, {".glb", "glb2"}};
+  const std::map<std::string, std::string> formats{
+      {".obj", "obj"}, {".ply", "ply"}, {".stl", "stl"}, {".gltf", "gltf2"}, {".glb", "glb2"}};
   const auto format = formats.find(extension);
   if (format == formats.end()) fail("mesh file '", path, "': unknown extension (use .obj, .ply, .stl, .gltf or .glb)");
   // The exporter takes ownership of the scene's arrays through aiScene's destructor.
   aiScene scene;
   scene.mRootNode = new aiNode("sinew");
   scene.mNumMaterials = 1;
-  scene.mMaterials = new aiMaterial*[1]{new aiMaterial()};
+  scene.mMaterials = new aiMaterial* [1] { new aiMaterial() };
   scene.mNumMeshes = static_cast<unsigned>(meshes.size());
   scene.mMeshes = new aiMesh*[meshes.size()];
   scene.mRootNode->mNumChildren = static_cast<unsigned>(meshes.size());
@@ -94,7 +94,8 @@ void save_triangle_meshes(const std::string& path, const std::vector<TriangleMes
       aiFace& face = mesh->mFaces[f];
       face.mNumIndices = 3;
       face.mIndices = new unsigned[3];
-      for (int k = 0; k < 3; ++k) face.mIndices[k] = static_cast<unsigned>(in.triangles[f][static_cast<std::size_t>(k)]);
+      for (int k = 0; k < 3; ++k)
+        face.mIndices[k] = static_cast<unsigned>(in.triangles[f][static_cast<std::size_t>(k)]);
     }
     auto* node = new aiNode(m < names.size() ? names[m] : "mesh" + std::to_string(m));
     node->mParent = scene.mRootNode;
@@ -142,8 +143,10 @@ TetMesh load_tet_mesh(const std::string& stem) {
   const auto nodes = read_table(node_path);
   const auto eles = read_table(ele_path);
   const auto count = static_cast<std::size_t>(nodes[0][0]);
-  if (nodes[0].size() < 2 || nodes[0][1] != 3) fail("tet mesh file '", node_path, "': header must declare 3 dimensions");
-  if (nodes.size() != count + 1) fail("tet mesh file '", node_path, "': header says ", count, " nodes, found ", nodes.size() - 1);
+  if (nodes[0].size() < 2 || nodes[0][1] != 3)
+    fail("tet mesh file '", node_path, "': header must declare 3 dimensions");
+  if (nodes.size() != count + 1)
+    fail("tet mesh file '", node_path, "': header says ", count, " nodes, found ", nodes.size() - 1);
   TetMesh out;
   out.vertices.resize(3, static_cast<Index>(count));
   const Index first = count > 0 ? static_cast<Index>(nodes[1][0]) : 0;  // TetGen numbers from 0 or 1
@@ -153,7 +156,8 @@ TetMesh load_tet_mesh(const std::string& stem) {
   }
   const auto tets = static_cast<std::size_t>(eles[0][0]);
   if (eles[0].size() < 2 || eles[0][1] != 4) fail("tet mesh file '", ele_path, "': only 4-node tets are supported");
-  if (eles.size() != tets + 1) fail("tet mesh file '", ele_path, "': header says ", tets, " tets, found ", eles.size() - 1);
+  if (eles.size() != tets + 1)
+    fail("tet mesh file '", ele_path, "': header says ", tets, " tets, found ", eles.size() - 1);
   for (std::size_t t = 0; t < tets; ++t) {
     const auto& row = eles[t + 1];
     if (row.size() < 5) fail("tet mesh file '", ele_path, "': tet ", t, " has fewer than 4 nodes");
@@ -161,14 +165,16 @@ TetMesh load_tet_mesh(const std::string& stem) {
     for (int k = 0; k < 4; ++k) {
       tet[static_cast<std::size_t>(k)] = static_cast<Index>(row[static_cast<std::size_t>(k) + 1]) - first;
       if (tet[static_cast<std::size_t>(k)] < 0 || tet[static_cast<std::size_t>(k)] >= static_cast<Index>(count))
-        fail("tet mesh file '", ele_path, "': tet ", t, " refers to node ", row[static_cast<std::size_t>(k) + 1], ", which does not exist");
+        fail("tet mesh file '", ele_path, "': tet ", t, " refers to node ", row[static_cast<std::size_t>(k) + 1],
+             ", which does not exist");
     }
     Mat3 edges;
     edges << out.vertices.col(tet[1]) - out.vertices.col(tet[0]), out.vertices.col(tet[2]) - out.vertices.col(tet[0]),
         out.vertices.col(tet[3]) - out.vertices.col(tet[0]);
     const double volume = edges.determinant() / 6.0;
     const double scale = edges.colwise().norm().maxCoeff();
-    if (!(std::abs(volume) > 1e-12 * scale * scale * scale)) fail("tet mesh file '", ele_path, "': tet ", t, " is degenerate (volume ", volume, ")");
+    if (!(std::abs(volume) > 1e-12 * scale * scale * scale))
+      fail("tet mesh file '", ele_path, "': tet ", t, " is degenerate (volume ", volume, ")");
     if (volume < 0) std::swap(tet[2], tet[3]);
     out.tets.push_back(tet);
   }
@@ -180,7 +186,8 @@ TriangleMesh boundary(const TetMesh& mesh) {
   // tet's fourth vertex is behind it.
   std::map<std::array<Index, 3>, std::pair<int, std::array<Index, 3>>> faces;
   for (const auto& t : mesh.tets) {
-    const std::array<std::array<Index, 3>, 4> local{{{t[0], t[2], t[1]}, {t[0], t[1], t[3]}, {t[0], t[3], t[2]}, {t[1], t[2], t[3]}}};
+    const std::array<std::array<Index, 3>, 4> local{
+        {{t[0], t[2], t[1]}, {t[0], t[1], t[3]}, {t[0], t[3], t[2]}, {t[1], t[2], t[3]}}};
     for (const auto& f : local) {
       std::array<Index, 3> key = f;
       std::sort(key.begin(), key.end());

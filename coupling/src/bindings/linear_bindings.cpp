@@ -89,7 +89,9 @@ double LinearBindings::inverse_effective_mass(Index k, const VectorXd& mass, con
   return inverse;
 }
 
-double LinearBindings::effective_mass_along(Index, const Vec3&, double scalar, const RigidBodyParticles&) const { return scalar; }
+double LinearBindings::effective_mass_along(Index, const Vec3&, double scalar, const RigidBodyParticles&) const {
+  return scalar;
+}
 
 void LinearBindings::apply_impulse(Index k, const Vec3& j, Particles& p, RigidBodyParticles&) const {
   for (Index i = m_offset[k]; i < m_offset[k + 1]; ++i)

@@ -36,7 +36,9 @@ void RigidBindings::absorb_masses(const VectorXd& mass, RigidBodyParticles& bodi
     const Vec3 c0 = bodies.x.col(b);
     const double total = m0 + added;
     const Vec3 c = (m0 * c0 + moment) / total;
-    auto point_inertia = [](double m, const Vec3& d) { return m * (d.squaredNorm() * Mat3::Identity() - d * d.transpose()); };
+    auto point_inertia = [](double m, const Vec3& d) {
+      return m * (d.squaredNorm() * Mat3::Identity() - d * d.transpose());
+    };
     Mat3 inertia = bodies.world_inertia(b) + point_inertia(m0, c0 - c);
     for (Index k = 0; k < size(); ++k)
       if (m_body[k] == b) inertia += point_inertia(mass[m_particle[k]], c0 + offset_world(k) - c);
@@ -48,7 +50,8 @@ void RigidBindings::absorb_masses(const VectorXd& mass, RigidBodyParticles& bodi
     for (Index k = 0; k < size(); ++k)
       if (m_body[k] == b) m_r0[k] = q_new.conjugate() * (c0 + offset_world(k) - c);
     const Quat q_merged = q_new.normalized();
-    m_absorbed.push_back({b, m0, bodies.inertia.col(b), q_merged.conjugate() * (c0 - c), q_merged.conjugate() * bodies.q[b]});
+    m_absorbed.push_back(
+        {b, m0, bodies.inertia.col(b), q_merged.conjugate() * (c0 - c), q_merged.conjugate() * bodies.q[b]});
     bodies.v.col(b) += w.cross(c - c0);
     bodies.x.col(b) = c;
     bodies.q[b] = q_merged;

@@ -27,7 +27,8 @@ constexpr double kZeroLengthRelative = 1.0e-12;
 
 void check_stencil(const Stencils& stencils, Index e, Index particle_count) {
   const auto nodes = stencils[e];
-  if (nodes.size() < 2) fail(kName, ": element ", e, " has ", nodes.size(), " nodes, expected a particle and at least one neighbour");
+  if (nodes.size() < 2)
+    fail(kName, ": element ", e, " has ", nodes.size(), " nodes, expected a particle and at least one neighbour");
   for (std::size_t a = 0; a < nodes.size(); ++a) {
     if (nodes[a] < 0 || nodes[a] >= particle_count)
       fail(kName, ": element ", e, ": node index ", nodes[a], " out of range [0, ", particle_count, ")");
@@ -53,14 +54,16 @@ CentroidSprings::CentroidSprings(Stencils stencils, const Vectors3& rest_x, cons
     const auto nodes = m_stencils[e];
     double scale = 0.0;
     for (std::size_t a = 0; a < nodes.size(); ++a) {
-      if (!rest_x.col(nodes[a]).allFinite()) fail(kName, ": element ", e, ": rest position of node ", nodes[a], " is not finite");
+      if (!rest_x.col(nodes[a]).allFinite())
+        fail(kName, ": element ", e, ": rest position of node ", nodes[a], " is not finite");
       scale = std::max(scale, rest_x.col(nodes[a]).cwiseAbs().maxCoeff());
       m_weight_sum[nodes[a]] += std::abs(weight(e, a));
       m_index_span = std::max(m_index_span, nodes[a] + 1);
     }
     const Vec3 d = weighted_sum(e, rest_x);
     const double l0 = d.norm();
-    if (!(l0 > kZeroLengthRelative * scale) || l0 == 0.0) fail(kName, ": element ", e, " has zero rest length (", l0, ")");
+    if (!(l0 > kZeroLengthRelative * scale) || l0 == 0.0)
+      fail(kName, ": element ", e, " has zero rest length (", l0, ")");
     m_rest_length[e] = l0;
     m_length[e] = l0;
     m_direction.col(e) = d / l0;
@@ -180,7 +183,8 @@ bool CentroidSprings::add_diagonal_blocks(double b, Blocks& blocks) const {
     const Mat3 block = element_block(e, b);
     const auto nodes = m_stencils[e];
     for (std::size_t a = 0; a < nodes.size(); ++a)
-      blocks.col(nodes[a]) += Eigen::Map<const Eigen::Matrix<double, 9, 1>>(Mat3(weight(e, a) * weight(e, a) * block).data());
+      blocks.col(nodes[a]) +=
+          Eigen::Map<const Eigen::Matrix<double, 9, 1>>(Mat3(weight(e, a) * weight(e, a) * block).data());
   }
   return true;
 }
@@ -191,14 +195,16 @@ bool CentroidSprings::visit_pair_blocks(double b, PairBlockSink& sink) const {
     const Mat3 block = element_block(e, b);
     const auto nodes = m_stencils[e];
     for (std::size_t a = 0; a < nodes.size(); ++a)
-      for (std::size_t c = a + 1; c < nodes.size(); ++c) sink.add(nodes[a], nodes[c], Mat3(-(weight(e, a) * weight(e, c)) * block));
+      for (std::size_t c = a + 1; c < nodes.size(); ++c)
+        sink.add(nodes[a], nodes[c], Mat3(-(weight(e, a) * weight(e, c)) * block));
   }
   return true;
 }
 
 // Block k of the visit's sequence: its element by bisection of the pair offsets, then its pair.
 Mat3 CentroidSprings::pair_block(Index k, double b) const {
-  const auto e = static_cast<Index>(std::upper_bound(m_pair_offset.begin(), m_pair_offset.end(), k) - m_pair_offset.begin()) - 1;
+  const auto e =
+      static_cast<Index>(std::upper_bound(m_pair_offset.begin(), m_pair_offset.end(), k) - m_pair_offset.begin()) - 1;
   const auto s = m_stencils[e].size();
   Index local = k - m_pair_offset[static_cast<std::size_t>(e)];
   std::size_t a = 0;

@@ -93,9 +93,9 @@ CorotatedTets::CorotatedTets(std::vector<Tet> tets, const Vectors3& rest_x, cons
     detail::check_rest_positions("tet", e, v, rest_x);
     const Mat3 dm = edge_matrix(rest_x, v);
     const double volume = dm.determinant() / 6.0;
-    const double longest = std::max({dm.col(0).norm(), dm.col(1).norm(), dm.col(2).norm(),
-                                     (dm.col(1) - dm.col(0)).norm(), (dm.col(2) - dm.col(0)).norm(),
-                                     (dm.col(2) - dm.col(1)).norm()});
+    const double longest =
+        std::max({dm.col(0).norm(), dm.col(1).norm(), dm.col(2).norm(), (dm.col(1) - dm.col(0)).norm(),
+                  (dm.col(2) - dm.col(0)).norm(), (dm.col(2) - dm.col(1)).norm()});
     const double threshold = kDegenerateRelative * longest * longest * longest;
     if (volume < -threshold) fail("tet ", e, " is inverted (volume ", volume, ")");
     if (!(volume > threshold)) fail("tet ", e, " is degenerate (volume ", volume, ")");

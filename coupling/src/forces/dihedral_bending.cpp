@@ -60,7 +60,7 @@ struct HingeKinematics {
 /// and for non-finite input, the library's atan2. About four times cheaper than atan2 on the common
 /// path, which made atan2 a third of the bending force's cost.
 constexpr double kAtanSeries[9] = {1.0 / 17.0, -1.0 / 15.0, 1.0 / 13.0, -1.0 / 11.0, 1.0 / 9.0,
-                                   -1.0 / 7.0, 1.0 / 5.0, -1.0 / 3.0, 1.0};
+                                   -1.0 / 7.0, 1.0 / 5.0,   -1.0 / 3.0, 1.0};
 double angle_of(double y, double x) {
   if (x > 0.0 && std::abs(y) <= 0.125 * x) {
     const double t = y / x, z = t * t;
@@ -129,7 +129,7 @@ void gather_hinge(const Vectors3& x, const std::array<Index, 4>& v, Vec<double> 
 struct Lanes {
   __m128d v;
   Lanes() = default;
-  Lanes(__m128d value) : v(value) {}                     // NOLINT: implicit, as a scalar from its value
+  Lanes(__m128d value) : v(value) {}                       // NOLINT: implicit, as a scalar from its value
   explicit Lanes(double value) : v(_mm_set1_pd(value)) {}  // both lanes
   friend Lanes operator+(Lanes a, Lanes b) { return {_mm_add_pd(a.v, b.v)}; }
   friend Lanes operator-(Lanes a, Lanes b) { return {_mm_sub_pd(a.v, b.v)}; }
@@ -142,7 +142,8 @@ Lanes sqrt(Lanes a) { return {_mm_sqrt_pd(a.v)}; }
 // the same bits); otherwise lane by lane.
 Lanes angle_of(Lanes y, Lanes x) {
   const __m128d abs_y = _mm_andnot_pd(_mm_set1_pd(-0.0), y.v);
-  const __m128d near = _mm_and_pd(_mm_cmpgt_pd(x.v, _mm_setzero_pd()), _mm_cmple_pd(abs_y, _mm_mul_pd(_mm_set1_pd(0.125), x.v)));
+  const __m128d near =
+      _mm_and_pd(_mm_cmpgt_pd(x.v, _mm_setzero_pd()), _mm_cmple_pd(abs_y, _mm_mul_pd(_mm_set1_pd(0.125), x.v)));
   if (_mm_movemask_pd(near) == 3) {
     const __m128d t = _mm_div_pd(y.v, x.v), z = _mm_mul_pd(t, t);
     __m128d p = _mm_set1_pd(kAtanSeries[0]);
@@ -159,8 +160,9 @@ Lanes angle_of(Lanes y, Lanes x) {
 /// out(h, delta, grad) for every hinge h in [h0, h1), in order, at positions x: two hinges at a
 /// time where SSE2 is available (the same values as one at a time).
 template <typename Out>
-void for_each_hinge_kinematics(const std::vector<DihedralBending::Hinge>& hinges, const std::vector<std::array<double, 2>>& rest,
-                               const Vectors3& x, Index h0, Index h1, Out&& out) {
+void for_each_hinge_kinematics(const std::vector<DihedralBending::Hinge>& hinges,
+                               const std::vector<std::array<double, 2>>& rest, const Vectors3& x, Index h0, Index h1,
+                               Out&& out) {
   Index h = h0;
 #ifdef __SSE2__
   const double* px = x.data();
@@ -171,11 +173,14 @@ void for_each_hinge_kinematics(const std::vector<DihedralBending::Hinge>& hinges
     for (std::size_t a = 0; a < 4; ++a) {
       const double* u = px + 3 * first[a];
       const double* w = px + 3 * second[a];
-      p[a] = {{_mm_loadh_pd(_mm_load_sd(u), w)}, {_mm_loadh_pd(_mm_load_sd(u + 1), w + 1)}, {_mm_loadh_pd(_mm_load_sd(u + 2), w + 2)}};
+      p[a] = {{_mm_loadh_pd(_mm_load_sd(u), w)},
+              {_mm_loadh_pd(_mm_load_sd(u + 1), w + 1)},
+              {_mm_loadh_pd(_mm_load_sd(u + 2), w + 2)}};
     }
     const auto& r0 = rest[static_cast<std::size_t>(h)];
     const auto& r1 = rest[static_cast<std::size_t>(h + 1)];
-    const HingeKinematics<Lanes> k = hinge_kinematics(p, Lanes(_mm_set_pd(r1[0], r0[0])), Lanes(_mm_set_pd(r1[1], r0[1])));
+    const HingeKinematics<Lanes> k =
+        hinge_kinematics(p, Lanes(_mm_set_pd(r1[0], r0[0])), Lanes(_mm_set_pd(r1[1], r0[1])));
     // Back to one hinge per lane: [l] is delta, then the gradient's 12 components.
     alignas(16) double lanes[13][2];
     _mm_store_pd(lanes[0], k.delta.v);
@@ -206,9 +211,9 @@ void for_each_hinge_kinematics(const std::vector<DihedralBending::Hinge>& hinges
 
 std::vector<DihedralBending::Hinge> DihedralBending::hinges_from_triangles(const std::vector<Triangle>& triangles) {
   struct HalfEdge {
-    Index lo, hi;      // undirected key
+    Index lo, hi;  // undirected key
     Index triangle;
-    Index from, to;    // direction in the triangle's winding
+    Index from, to;  // direction in the triangle's winding
     Index opposite;
   };
   std::vector<HalfEdge> half_edges;
@@ -236,9 +241,9 @@ std::vector<DihedralBending::Hinge> DihedralBending::hinges_from_triangles(const
       ++end;
     }
     if (end - begin > 2) {
-      fail("edge (", half_edges[begin].lo, ", ", half_edges[begin].hi, ") is shared by ", end - begin,
-           " triangles (", half_edges[begin].triangle, ", ", half_edges[begin + 1].triangle, ", ",
-           half_edges[begin + 2].triangle, ", ...); dihedral bending needs a manifold mesh");
+      fail("edge (", half_edges[begin].lo, ", ", half_edges[begin].hi, ") is shared by ", end - begin, " triangles (",
+           half_edges[begin].triangle, ", ", half_edges[begin + 1].triangle, ", ", half_edges[begin + 2].triangle,
+           ", ...); dihedral bending needs a manifold mesh");
     }
     if (end - begin == 2) {
       const HalfEdge& first = half_edges[begin];
@@ -322,7 +327,8 @@ DihedralBending::DihedralBending(std::vector<Hinge> hinges, const Vectors3& rest
     for (Index k = m_incidence_offsets[i]; k < m_incidence_offsets[i + 1]; ++k) {
       const Index h = m_incidence[static_cast<std::size_t>(k)];
       const Hinge& hinge = m_hinges[static_cast<std::size_t>(h)];
-      m_incidence_slot[static_cast<std::size_t>(k)] = 4 * h + (std::find(hinge.begin(), hinge.end(), static_cast<Index>(i)) - hinge.begin());
+      m_incidence_slot[static_cast<std::size_t>(k)] =
+          4 * h + (std::find(hinge.begin(), hinge.end(), static_cast<Index>(i)) - hinge.begin());
     }
   m_node_ggt.setZero(9, static_cast<Index>(m_incidence_offsets.size()) - 1);
   m_delta.assign(count, 0.0);  // the cached state starts at rest (m_x, m_grad above)
@@ -344,11 +350,13 @@ void DihedralBending::update_position_state(const Vectors3& x) {
   m_grad_valid = false;
   if (m_settings.damping == 0.0 && !m_implicit) return;
   parallel::for_ranges(static_cast<Index>(m_hinges.size()), [&](Index h0, Index h1) {
-    for_each_hinge_kinematics(m_hinges, m_rest_direction, x, h0, h1, [&](Index hi, double delta, const Vec<double> (&grad)[4]) {
-      const auto h = static_cast<std::size_t>(hi);
-      m_delta[h] = delta;
-      for (std::size_t a = 0; a < 4; ++a) m_grad[h].col(static_cast<Index>(a)) = Vec3(grad[a].x, grad[a].y, grad[a].z);
-    });
+    for_each_hinge_kinematics(m_hinges, m_rest_direction, x, h0, h1,
+                              [&](Index hi, double delta, const Vec<double>(&grad)[4]) {
+                                const auto h = static_cast<std::size_t>(hi);
+                                m_delta[h] = delta;
+                                for (std::size_t a = 0; a < 4; ++a)
+                                  m_grad[h].col(static_cast<Index>(a)) = Vec3(grad[a].x, grad[a].y, grad[a].z);
+                              });
   });
   cache_node_gradients();
 }
@@ -361,7 +369,8 @@ void DihedralBending::cache_node_gradients() {
   parallel::for_ranges(nodes, [&](Index i0, Index i1) {
     for (Index i = i0; i < i1; ++i) {
       double xx = 0.0, xy = 0.0, xz = 0.0, yy = 0.0, yz = 0.0, zz = 0.0;
-      for (Index k = m_incidence_offsets[static_cast<std::size_t>(i)]; k < m_incidence_offsets[static_cast<std::size_t>(i) + 1]; ++k) {
+      for (Index k = m_incidence_offsets[static_cast<std::size_t>(i)];
+           k < m_incidence_offsets[static_cast<std::size_t>(i) + 1]; ++k) {
         const Index slot = m_incidence_slot[static_cast<std::size_t>(k)];  // 4 h + a
         const double* g = pg + 3 * slot;
         const double w = m_weight[static_cast<std::size_t>(slot / 4)];
@@ -414,15 +423,16 @@ void DihedralBending::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
       }
       return;
     }
-    for_each_hinge_kinematics(m_hinges, m_rest_direction, x, h0, h1, [&](Index hi, double delta, const Vec<double> (&grad)[4]) {
-      const double scale = -2.0 * k_b * m_weight[static_cast<std::size_t>(hi)] * delta;
-      double* out = slots + 12 * hi;
-      for (std::size_t a = 0; a < 4; ++a) {
-        out[3 * a] = scale * grad[a].x;
-        out[3 * a + 1] = scale * grad[a].y;
-        out[3 * a + 2] = scale * grad[a].z;
-      }
-    });
+    for_each_hinge_kinematics(m_hinges, m_rest_direction, x, h0, h1,
+                              [&](Index hi, double delta, const Vec<double>(&grad)[4]) {
+                                const double scale = -2.0 * k_b * m_weight[static_cast<std::size_t>(hi)] * delta;
+                                double* out = slots + 12 * hi;
+                                for (std::size_t a = 0; a < 4; ++a) {
+                                  out[3 * a] = scale * grad[a].x;
+                                  out[3 * a + 1] = scale * grad[a].y;
+                                  out[3 * a + 2] = scale * grad[a].z;
+                                }
+                              });
   });
   m_scatter.gather_add(f);
 }
@@ -452,7 +462,8 @@ void DihedralBending::add_damping_forces(const Vectors3& v, Vectors3& f) const {
 void DihedralBending::add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
   const double c = m_settings.damping + 2.0 * b * m_settings.stiffness;
   if (c == 0.0) return;
-  if (!m_implicit && m_settings.damping == 0.0) fail("dihedral bending: implicit products need set_implicit(true) first");
+  if (!m_implicit && m_settings.damping == 0.0)
+    fail("dihedral bending: implicit products need set_implicit(true) first");
   const double* pv = v.data();
   const double* pg = m_grad.empty() ? nullptr : m_grad[0].data();  // 12 per hinge: g_0 .. g_3
   const double* weight = m_weight.data();

@@ -28,9 +28,7 @@ inline Dual sqrt(Dual a) {
   return {s, a.d / (2.0 * s)};
 }
 
-inline Dual atan2(Dual y, Dual x) {
-  return {std::atan2(y.v, x.v), (x.v * y.d - y.v * x.d) / (x.v * x.v + y.v * y.v)};
-}
+inline Dual atan2(Dual y, Dual x) { return {std::atan2(y.v, x.v), (x.v * y.d - y.v * x.d) / (x.v * x.v + y.v * y.v)}; }
 
 inline double value_of(double a) { return a; }
 inline double value_of(Dual a) { return a.v; }

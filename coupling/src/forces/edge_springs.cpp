@@ -117,7 +117,8 @@ double EdgeSprings::potential_energy(const Vectors3& x) const {
 void EdgeSprings::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
   const double k = m_settings.stiffness;
   if (x.cols() == m_x.cols() && x == m_x) {
-    scatter_edges(f, [&](Index e, const Edge&) -> Vec3 { return (k * (m_length[e] - m_rest_length[e])) * m_direction.col(e); });
+    scatter_edges(
+        f, [&](Index e, const Edge&) -> Vec3 { return (k * (m_length[e] - m_rest_length[e])) * m_direction.col(e); });
     return;
   }
   scatter_edges(f, [&](Index e, const Edge& v) -> Vec3 {
@@ -174,7 +175,9 @@ void EdgeSprings::add_implicit_products(const Vectors3& v, double b, Vectors3& f
     // Two edges per register, the same IEEE operations in the same order as the scalar loop below
     // (so the same bits); the scatter stays scalar and in edge order.
     const __m128d scale = _mm_set1_pd(along_scale), stiff = _mm_set1_pd(bk);
-    auto pair = [&](const double* p, Index first, Index second) { return _mm_loadh_pd(_mm_load_sd(p + first), p + second); };
+    auto pair = [&](const double* p, Index first, Index second) {
+      return _mm_loadh_pd(_mm_load_sd(p + first), p + second);
+    };
     for (; e + 1 < chunk.end; e += 2) {
       const Index i0 = 3 * edges[e][0], j0 = 3 * edges[e][1];
       const Index i1 = 3 * edges[e + 1][0], j1 = 3 * edges[e + 1][1];
@@ -189,9 +192,9 @@ void EdgeSprings::add_implicit_products(const Vectors3& v, double b, Vectors3& f
       const __m128d f1 = _mm_add_pd(_mm_mul_pd(a, s1), _mm_mul_pd(transverse, _mm_sub_pd(dv1, _mm_mul_pd(along, s1))));
       const __m128d f2 = _mm_add_pd(_mm_mul_pd(a, s2), _mm_mul_pd(transverse, _mm_sub_pd(dv2, _mm_mul_pd(along, s2))));
       double g[6];
-      _mm_storeu_pd(g, _mm_unpacklo_pd(f0, f1));      // edge e: f0, f1
+      _mm_storeu_pd(g, _mm_unpacklo_pd(f0, f1));        // edge e: f0, f1
       _mm_storeu_pd(g + 2, _mm_shuffle_pd(f2, f0, 2));  // edge e: f2; edge e + 1: f0
-      _mm_storeu_pd(g + 4, _mm_unpackhi_pd(f1, f2));  // edge e + 1: f1, f2
+      _mm_storeu_pd(g + 4, _mm_unpackhi_pd(f1, f2));    // edge e + 1: f1, f2
       // Each coordinate receives edge e's term, then edge e + 1's: the order of the scalar loop.
       for (int k = 0; k < 3; ++k) {
         out[i0 + k] += g[k];
@@ -258,7 +261,8 @@ Mat3 EdgeSprings::implicit_block(Index e, double b) const {
 
 // The coupling block of edge (i, j) is the edge's implicit product matrix itself (f_i += B (v_j - v_i)).
 bool EdgeSprings::visit_pair_blocks(double b, PairBlockSink& sink) const {
-  for (std::size_t e = 0; e < m_edges.size(); ++e) sink.add(m_edges[e][0], m_edges[e][1], implicit_block(static_cast<Index>(e), b));
+  for (std::size_t e = 0; e < m_edges.size(); ++e)
+    sink.add(m_edges[e][0], m_edges[e][1], implicit_block(static_cast<Index>(e), b));
   return true;
 }
 

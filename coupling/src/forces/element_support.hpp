@@ -25,8 +25,7 @@ inline void check_non_negative(std::string_view force, std::string_view field, d
 /// Fails unless every vertex index of element e is in [0, particle_count) and none repeats:
 /// "triangle 12: vertex index 900 out of range [0, 400)".
 template <std::size_t K>
-void check_element_indices(std::string_view kind, std::size_t e, const std::array<Index, K>& v,
-                           Index particle_count) {
+void check_element_indices(std::string_view kind, std::size_t e, const std::array<Index, K>& v, Index particle_count) {
   for (std::size_t a = 0; a < K; ++a) {
     if (v[a] < 0 || v[a] >= particle_count) {
       fail(kind, " ", e, ": vertex index ", v[a], " out of range [0, ", particle_count, ")");
@@ -39,8 +38,7 @@ void check_element_indices(std::string_view kind, std::size_t e, const std::arra
 
 /// Fails if a rest position used by element e is not finite (it would poison the rest data).
 template <std::size_t K>
-void check_rest_positions(std::string_view kind, std::size_t e, const std::array<Index, K>& v,
-                          const Vectors3& rest_x) {
+void check_rest_positions(std::string_view kind, std::size_t e, const std::array<Index, K>& v, const Vectors3& rest_x) {
   for (Index i : v) {
     if (!rest_x.col(i).allFinite()) fail(kind, " ", e, ": rest position of vertex ", i, " is not finite");
   }
@@ -139,14 +137,18 @@ inline Eigen::Matrix<double, 3, static_cast<int>(K)> gather(const std::array<Ind
 template <std::size_t K>
 std::vector<std::array<Index, K>> elements_without(const std::vector<std::array<Index, K>>& elements,
                                                    std::span<const std::uint8_t> removed) {
-  auto gone = [&](Index i) { return i < static_cast<Index>(removed.size()) && removed[static_cast<std::size_t>(i)] != 0; };
+  auto gone = [&](Index i) {
+    return i < static_cast<Index>(removed.size()) && removed[static_cast<std::size_t>(i)] != 0;
+  };
   std::vector<std::array<Index, K>> kept;
   for (const auto& e : elements)
     if (std::none_of(e.begin(), e.end(), gone)) kept.push_back(e);
   return kept;
 }
 inline Stencils elements_without(const Stencils& elements, std::span<const std::uint8_t> removed) {
-  auto gone = [&](Index i) { return i < static_cast<Index>(removed.size()) && removed[static_cast<std::size_t>(i)] != 0; };
+  auto gone = [&](Index i) {
+    return i < static_cast<Index>(removed.size()) && removed[static_cast<std::size_t>(i)] != 0;
+  };
   Stencils kept;
   for (Index e = 0; e < elements.size(); ++e)
     if (std::none_of(elements[e].begin(), elements[e].end(), gone)) kept.push_back(elements[e]);
@@ -154,7 +156,9 @@ inline Stencils elements_without(const Stencils& elements, std::span<const std::
 }
 inline Index element_count(const Stencils& elements) { return elements.size(); }
 template <typename E>
-Index element_count(const std::vector<E>& elements) { return static_cast<Index>(elements.size()); }
+Index element_count(const std::vector<E>& elements) {
+  return static_cast<Index>(elements.size());
+}
 
 /// Force::remove_elements_touching for a force built as Force(elements, rest_x, settings): the force
 /// is built again from the elements that remain, with the rest positions and settings it was built

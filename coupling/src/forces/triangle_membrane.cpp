@@ -47,9 +47,7 @@ void scatter_h(const std::array<Index, 3>& v, const Mat32& h, Vectors3& f) {
 }
 
 /// Second Piola-Kirchhoff-like linear map S(E) = 2 mu E + lambda tr(E) I on symmetric 2x2 E.
-Mat2 stress(const Mat2& e, double mu, double lambda) {
-  return 2.0 * mu * e + (lambda * e.trace()) * Mat2::Identity();
-}
+Mat2 stress(const Mat2& e, double mu, double lambda) { return 2.0 * mu * e + (lambda * e.trace()) * Mat2::Identity(); }
 
 }  // namespace
 

@@ -70,7 +70,8 @@ class BindingKind {
   virtual double inverse_effective_mass(Index k, const VectorXd& mass, const RigidBodyParticles& bodies) const = 0;
   /// The effective mass along unit direction n: 1 / (n^T K n) for a frame point; `scalar` (the
   /// point's eq. 4 mass) where it does not depend on the direction.
-  virtual double effective_mass_along(Index k, const Vec3& n, double scalar, const RigidBodyParticles& bodies) const = 0;
+  virtual double effective_mass_along(Index k, const Vec3& n, double scalar,
+                                      const RigidBodyParticles& bodies) const = 0;
   /// Impulse j at bound point k, applied to its parents: dv_i = w_i j / m_i, or dv_c = j / m,
   /// dw = I^-1 (r x j). Kinematic parents do not move.
   virtual void apply_impulse(Index k, const Vec3& j, Particles& p, RigidBodyParticles& bodies) const = 0;

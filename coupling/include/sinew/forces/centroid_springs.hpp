@@ -62,11 +62,11 @@ class CentroidSprings final : public Force, public ImplicitBlocks {
 
   Stencils m_stencils;
   CentroidSpringsSettings m_settings;
-  Vectors3 m_rest_x;  ///< the rest positions it was built from (remove_elements_touching rebuilds from them)
-  VectorXd m_rest_length;           ///< l0 per element
-  VectorXd m_weight_sum;            ///< per particle: sum of |w| over its elements (stable_dt)
+  Vectors3 m_rest_x;       ///< the rest positions it was built from (remove_elements_touching rebuilds from them)
+  VectorXd m_rest_length;  ///< l0 per element
+  VectorXd m_weight_sum;   ///< per particle: sum of |w| over its elements (stable_dt)
   std::vector<Index> m_pair_offset;  ///< element e's node pairs are blocks [m_pair_offset[e], m_pair_offset[e + 1])
-  Index m_index_span = 0;           ///< one past the largest particle index used
+  Index m_index_span = 0;            ///< one past the largest particle index used
   // Position state: unit direction u of d, |d|, clamped transverse factor t+ = max(0, 1 - l0/l).
   Vectors3 m_direction;
   VectorXd m_length, m_transverse;

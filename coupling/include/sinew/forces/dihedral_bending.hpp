@@ -91,15 +91,15 @@ class DihedralBending final : public Force, public ImplicitBlocks {
   std::vector<std::array<double, 4>> m_dt_weights;  ///< stable_dt weights w_{e,a}
   std::vector<Index> m_incidence_offsets;
   std::vector<Index> m_incidence;
-  std::vector<Index> m_incidence_slot;  ///< per incidence entry: 4 h + a, node i = hinge h's vertex a
+  std::vector<Index> m_incidence_slot;                  ///< per incidence entry: 4 h + a, node i = hinge h's vertex a
   Eigen::Matrix<double, 9, Eigen::Dynamic> m_node_ggt;  ///< per node: sum over its hinges of w g_a g_a^T
-  std::vector<double> m_delta;          ///< theta - theta0 per hinge at the cached state
-  bool m_grad_valid = false;            ///< m_grad, m_delta, m_node_ggt hold the cached state's values
+  std::vector<double> m_delta;                          ///< theta - theta0 per hinge at the cached state
+  bool m_grad_valid = false;                            ///< m_grad, m_delta, m_node_ggt hold the cached state's values
   // Position state: hinge vertex positions (for the differential) and d theta / dx (for damping).
-  bool m_implicit = false;  // set_implicit: the angle gradients are needed even without damping
-  Vectors3 m_x;  // positions of the cached state (a plain copy: cheaper than per-hinge stencils)
+  bool m_implicit = false;             // set_implicit: the angle gradients are needed even without damping
+  Vectors3 m_x;                        // positions of the cached state (a plain copy: cheaper than per-hinge stencils)
   mutable ScatterGather<4> m_scatter;  // per-hinge forces on its four nodes, gathered per node
-  ChunkedScatter m_chunks;  // the implicit products' fixed chunks of hinges
+  ChunkedScatter m_chunks;             // the implicit products' fixed chunks of hinges
   std::vector<Eigen::Matrix<double, 3, 4>> m_grad;
   /// m_node_ggt from m_grad; sets m_grad_valid.
   void cache_node_gradients();

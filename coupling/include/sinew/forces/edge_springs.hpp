@@ -57,10 +57,10 @@ class EdgeSprings final : public Force, public ImplicitBlocks {
 
   std::vector<Edge> m_edges;
   EdgeSpringsSettings m_settings;
-  Vectors3 m_rest_x;  ///< the rest positions it was built from (remove_elements_touching rebuilds from them)
-  VectorXd m_rest_length;      ///< l0 per edge
-  VectorXd m_stiffness_sum;    ///< sum of k over the edges at each particle (stable_dt)
-  Index m_index_span = 0;      ///< one past the largest particle index used
+  Vectors3 m_rest_x;         ///< the rest positions it was built from (remove_elements_touching rebuilds from them)
+  VectorXd m_rest_length;    ///< l0 per edge
+  VectorXd m_stiffness_sum;  ///< sum of k over the edges at each particle (stable_dt)
+  Index m_index_span = 0;    ///< one past the largest particle index used
   // Position state (update_position_state): unit direction x_j - x_i and length per edge, and the
   // positions they were computed from (forces there reuse them).
   Vectors3 m_direction;

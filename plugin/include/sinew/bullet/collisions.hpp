@@ -17,8 +17,8 @@ namespace sinew::bullet {
 /// compounds take the closest child; concave shapes (triangle meshes, height fields) give the
 /// unsigned distance to the nearest triangle within `reach`. Returns false when nothing is within
 /// `reach` (concave) or the shape type is not supported.
-bool signed_distance(const btCollisionShape* shape, const btTransform& frame, const Vec3& x, double reach,
-                     double& phi, Vec3& normal);
+bool signed_distance(const btCollisionShape* shape, const btTransform& frame, const Vec3& x, double reach, double& phi,
+                     Vec3& normal);
 
 struct CollisionSettings {
   double thickness = 0.01;  ///< particles keep this distance from every surface [m]

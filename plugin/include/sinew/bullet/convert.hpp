@@ -21,5 +21,7 @@ inline Quat to_eigen(const btQuaternion& q) { return Quat(q.w(), q.x(), q.y(), q
 
 namespace sinew {
 // Beside sinew::all_finite(const Vec3&), not in sinew::bullet, where it would hide that overload.
-inline bool all_finite(const btVector3& v) { return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z()); }
+inline bool all_finite(const btVector3& v) {
+  return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
+}
 }  // namespace sinew

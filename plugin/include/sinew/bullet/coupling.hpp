@@ -103,7 +103,7 @@ class Coupling {
   void (*m_app_pre_tick)(btDynamicsWorld*, btScalar) = nullptr;
   void (*m_app_post_tick)(btDynamicsWorld*, btScalar) = nullptr;
   StepStats m_last;
-  BulletCollisions* m_collisions = nullptr;  // owned by the system's collision sources
+  BulletCollisions* m_collisions = nullptr;                               // owned by the system's collision sources
   std::unordered_map<const btCollisionObject*, Index> m_rigid_particles;  // m_bodies' inverse
 };
 

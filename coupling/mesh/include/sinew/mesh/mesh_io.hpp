@@ -11,13 +11,13 @@
 namespace sinew::mesh {
 
 struct TriangleMesh {
-  Vectors3 vertices;                                ///< 3 x V
-  std::vector<std::array<Index, 3>> triangles;      ///< indices into vertices
+  Vectors3 vertices;                            ///< 3 x V
+  std::vector<std::array<Index, 3>> triangles;  ///< indices into vertices
 };
 
 struct TetMesh {
-  Vectors3 vertices;                                ///< 3 x V
-  std::vector<std::array<Index, 4>> tets;           ///< positively oriented
+  Vectors3 vertices;                       ///< 3 x V
+  std::vector<std::array<Index, 4>> tets;  ///< positively oriented
 };
 
 /// Loads every mesh of a file as one triangle mesh (polygons triangulated, coincident vertices
