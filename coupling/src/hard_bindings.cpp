@@ -66,77 +66,79 @@ void HardBindings::flatten(Index particle_count, Index rigid_count) {
         fail("binding ", m_linear.id(k), ": parent ", p, " out of range [0, ", particle_count, ")");
   rebuild_lookup(particle_count);
 
-  // Expand every linear binding until its parents are unbound. A chain longer than the number of
-  // bindings must revisit a binding, i.e. it is a cycle.
-  struct Term {
-    Index parent;
-    double weight;
-  };
   LinearBindings flat;
-  std::vector<Term> terms, next;
+  Chain chain;
   std::vector<Index> parents;
   std::vector<double> weights;
-  const Index max_depth = size() + 1;
   for (Index k = 0; k < m_linear.size(); ++k) {
     const Index id = m_linear.id(k);
-    terms.clear();
-    for (std::size_t i = 0; i < m_linear.parents(k).size(); ++i)
-      terms.push_back({m_linear.parents(k)[i], m_linear.weights(k)[i]});
-    Index rigid_body_of_chain = -1;
-    Vec3 rigid_r0 = Vec3::Zero();
-    double rigid_weight = 0.0;
-    for (Index depth = 0;; ++depth) {
-      if (depth > max_depth) fail("binding ", id, ": chain of bindings forms a cycle");
-      bool expanded = false;
-      next.clear();
-      for (const Term& t : terms) {
-        const int kind = m_kind_of[t.parent];
-        const Index code = m_index_in_kind[t.parent];
-        if (kind < 0) {
-          next.push_back(t);
-        } else if (kind == 0) {
-          expanded = true;
-          for (std::size_t i = 0; i < m_linear.parents(code).size(); ++i)
-            next.push_back({m_linear.parents(code)[i], t.weight * m_linear.weights(code)[i]});
-        } else if (kind != 1) {
-          fail("binding ", id, ": parent ", t.parent, " is a ", kinds()[static_cast<std::size_t>(kind)]->name(),
-               ", which cannot be the parent of an embedded point");
-        } else {
-          if (rigid_body_of_chain >= 0 && rigid_body_of_chain != m_rigid.body(code))
-            fail("binding ", id, ": parents lie on different rigid bodies (", rigid_body_of_chain, " and ",
-                 m_rigid.body(code), ")");
-          rigid_body_of_chain = m_rigid.body(code);
-          rigid_r0 += t.weight * m_rigid.offset_body(code);
-          rigid_weight += t.weight;
-        }
-      }
-      terms.swap(next);
-      if (!expanded) break;
-    }
-    if (rigid_body_of_chain >= 0) {
+    resolve_chain(k, chain);
+    if (chain.rigid_body >= 0) {
       // A point embedded among points of one rigid frame is itself a point of that frame:
       // sum_i w_i (x_c + R r0_i) = x_c + R sum_i w_i r0_i because sum_i w_i = 1.
-      if (!terms.empty())
+      if (!chain.terms.empty())
         fail("binding ", id, ": parents mix a rigid frame and free particles, which is not a linear map");
-      m_rigid.add(id, m_linear.particle(k), rigid_body_of_chain, rigid_r0 / rigid_weight);
+      m_rigid.add(id, m_linear.particle(k), chain.rigid_body, chain.rigid_r0 / chain.rigid_weight);
       continue;
     }
     // Merge repeated parents (two chains reaching the same node) in a fixed, sorted order.
-    std::sort(terms.begin(), terms.end(), [](const Term& a, const Term& b) { return a.parent < b.parent; });
+    std::sort(chain.terms.begin(), chain.terms.end(), [](const Term& a, const Term& b) { return a.parent < b.parent; });
     parents.clear();
     weights.clear();
-    for (std::size_t i = 0; i < terms.size(); ++i) {
-      if (i > 0 && terms[i].parent == parents.back()) {
-        weights.back() += terms[i].weight;
+    for (std::size_t i = 0; i < chain.terms.size(); ++i) {
+      if (i > 0 && chain.terms[i].parent == parents.back()) {
+        weights.back() += chain.terms[i].weight;
       } else {
-        parents.push_back(terms[i].parent);
-        weights.push_back(terms[i].weight);
+        parents.push_back(chain.terms[i].parent);
+        weights.push_back(chain.terms[i].weight);
       }
     }
     flat.add(id, m_linear.particle(k), parents, weights);
   }
   m_linear = std::move(flat);
   rebuild_lookup(particle_count);
+}
+
+// Expands linear binding k until its parents are unbound: terms on unbound particles, or the rigid
+// frame points reached, summed as one offset. A chain longer than the number of bindings must revisit
+// a binding, i.e. it is a cycle.
+void HardBindings::resolve_chain(Index k, Chain& chain) const {
+  const Index id = m_linear.id(k);
+  chain.terms.clear();
+  for (std::size_t i = 0; i < m_linear.parents(k).size(); ++i)
+    chain.terms.push_back({m_linear.parents(k)[i], m_linear.weights(k)[i]});
+  chain.rigid_body = -1;
+  chain.rigid_r0 = Vec3::Zero();
+  chain.rigid_weight = 0.0;
+  const Index max_depth = size() + 1;
+  for (Index depth = 0;; ++depth) {
+    if (depth > max_depth) fail("binding ", id, ": chain of bindings forms a cycle");
+    bool expanded = false;
+    chain.next.clear();
+    for (const Term& t : chain.terms) {
+      const int kind = m_kind_of[t.parent];
+      const Index code = m_index_in_kind[t.parent];
+      if (kind < 0) {
+        chain.next.push_back(t);
+      } else if (kind == 0) {
+        expanded = true;
+        for (std::size_t i = 0; i < m_linear.parents(code).size(); ++i)
+          chain.next.push_back({m_linear.parents(code)[i], t.weight * m_linear.weights(code)[i]});
+      } else if (kind != 1) {
+        fail("binding ", id, ": parent ", t.parent, " is a ", kinds()[static_cast<std::size_t>(kind)]->name(),
+             ", which cannot be the parent of an embedded point");
+      } else {
+        if (chain.rigid_body >= 0 && chain.rigid_body != m_rigid.body(code))
+          fail("binding ", id, ": parents lie on different rigid bodies (", chain.rigid_body, " and ",
+               m_rigid.body(code), ")");
+        chain.rigid_body = m_rigid.body(code);
+        chain.rigid_r0 += t.weight * m_rigid.offset_body(code);
+        chain.rigid_weight += t.weight;
+      }
+    }
+    chain.terms.swap(chain.next);
+    if (!expanded) break;
+  }
 }
 
 void HardBindings::update_rigid_offsets(const RigidBodyParticles& bodies) {

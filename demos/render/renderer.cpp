@@ -204,8 +204,8 @@ Picture picture_of(scenes::BulletScene& scene, const Overlays& overlays) {
   }
   const HardBindings& hard = s.hard_bindings();
   if (overlays.hard_bound) {
-    for (Index k = 0; k < hard.linear_count(); ++k) picture.hard_bound.push_back(x.col(hard.linear_particle(k)));
-    for (Index k = 0; k < hard.rigid_count(); ++k) picture.hard_bound.push_back(x.col(hard.rigid_particle(k)));
+    for (const BindingKind* kind : hard.kinds())
+      for (Index k = 0; k < kind->size(); ++k) picture.hard_bound.push_back(x.col(kind->particle(k)));
   }
   if (overlays.soft_bound) {
     const SoftBindings& soft = s.soft_bindings();

@@ -121,6 +121,18 @@ class HardBindings {
   }
   std::array<BindingKind*, 2> mutable_kinds() { return {&m_linear, &m_rigid}; }
   void rebuild_lookup(Index particle_count);
+  struct Term {
+    Index parent;
+    double weight;
+  };
+  /// Linear binding k expanded through bound parents (flatten's work per binding; scratch reused).
+  struct Chain {
+    std::vector<Term> terms, next;  ///< on unbound particles
+    Index rigid_body = -1;          ///< the rigid frame the chain reached, or -1
+    Vec3 rigid_r0 = Vec3::Zero();   ///< sum of w r0 over the frame points reached
+    double rigid_weight = 0.0;      ///< sum of their weights
+  };
+  void resolve_chain(Index k, Chain& chain) const;
 
   LinearBindings m_linear;
   RigidBindings m_rigid;
