@@ -720,6 +720,23 @@ TEST(EdgeSprings, ChunkedProductsMatchPerEdgeSumsOnAnyThreadCount) {
 // ChunkedScatter: elements in grid order (each chunk's nodes a band) add straight into f, even chunks
 // then odd; the same elements shuffled (chunks spanning every node) fall back to per-chunk buffers.
 // Either way every node gets its terms to round-off, with the same bits on one and two threads.
+// Runs `scatter` through `chunks` on one and two threads into f = 0.5 everywhere: integer terms make
+// the sums exact in any order, so both must equal `expected` bit for bit.
+template <typename Scatter>
+void expect_exact_on_one_and_two_threads(const ChunkedScatter& chunks, Scatter&& scatter, Index nodes,
+                                         const Vectors3& expected) {
+  auto run = [&](int threads) {
+    set_thread_count(threads);
+    Vectors3 f = Vectors3::Constant(3, nodes, 0.5);
+    chunks.run(f, scatter);
+    set_thread_count(1);
+    return f;
+  };
+  const Vectors3 one = run(1), two = run(2);
+  EXPECT_TRUE(one == expected) << "integer terms: exact in any order";
+  EXPECT_TRUE(one == two);
+}
+
 TEST(ChunkedScatter, DirectAndBufferedChunksGiveEachNodeItsTermsOnAnyThreadCount) {
   const Index side = 60, nodes = side * side;
   std::vector<std::array<Index, 2>> grid;
@@ -751,16 +768,7 @@ TEST(ChunkedScatter, DirectAndBufferedChunksGiveEachNodeItsTermsOnAnyThreadCount
         expected(c, (*elements)[e][0]) += static_cast<double>((e + 1) * (c + 1));
         expected(c, (*elements)[e][1]) -= static_cast<double>((e + 1) * (c + 1));
       }
-    auto run = [&](int threads) {
-      set_thread_count(threads);
-      Vectors3 f = Vectors3::Constant(3, nodes, 0.5);
-      chunks.run(f, scatter);
-      set_thread_count(1);
-      return f;
-    };
-    const Vectors3 one = run(1), two = run(2);
-    EXPECT_TRUE(one == expected) << "integer terms: exact in any order";
-    EXPECT_TRUE(one == two);
+    expect_exact_on_one_and_two_threads(chunks, scatter, nodes, expected);
   }
 }
 
@@ -808,16 +816,7 @@ TEST(ChunkedScatter, VariableStencilsGiveEachNodeItsTermsOnAnyThreadCount) {
       for (std::size_t a = 0; a < (*elements)[e].size(); ++a)
         for (Index c = 0; c < 3; ++c)
           expected(c, (*elements)[e][a]) += term(static_cast<Index>(e), static_cast<Index>(a), c);
-    auto run = [&](int threads) {
-      set_thread_count(threads);
-      Vectors3 f = Vectors3::Constant(3, nodes, 0.5);
-      chunks.run(f, scatter);
-      set_thread_count(1);
-      return f;
-    };
-    const Vectors3 one = run(1), two = run(2);
-    EXPECT_TRUE(one == expected) << "integer terms: exact in any order";
-    EXPECT_TRUE(one == two);
+    expect_exact_on_one_and_two_threads(chunks, scatter, nodes, expected);
   }
 }
 
@@ -1179,31 +1178,18 @@ Vectors3 five_points(const Vec3& x4) {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
+// One line per bad input: the table reads as one.
+// clang-format off
 const BadInputCase kBadInputs[] = {
-    {"springs_nan_stiffness",
-     [] {
-       EdgeSprings({{0, 1}}, three_points(), {.stiffness = kNaN});
-     },
+    {"springs_nan_stiffness", [] { EdgeSprings({{0, 1}}, three_points(), {.stiffness = kNaN}); },
      "edge springs: stiffness is nan"},
-    {"springs_negative_stiffness",
-     [] {
-       EdgeSprings({{0, 1}}, three_points(), {.stiffness = -1.0});
-     },
+    {"springs_negative_stiffness", [] { EdgeSprings({{0, 1}}, three_points(), {.stiffness = -1.0}); },
      "edge springs: stiffness is negative"},
-    {"springs_inf_damping",
-     [] {
-       EdgeSprings({{0, 1}}, three_points(), {.damping = kInfinity});
-     },
+    {"springs_inf_damping", [] { EdgeSprings({{0, 1}}, three_points(), {.damping = kInfinity}); },
      "edge springs: damping is inf"},
-    {"springs_index_out_of_range",
-     [] {
-       EdgeSprings({{0, 1}, {1, 7}}, three_points());
-     },
+    {"springs_index_out_of_range", [] { EdgeSprings({{0, 1}, {1, 7}}, three_points()); },
      "edge 1: vertex index 7 out of range [0, 3)"},
-    {"springs_repeated_index",
-     [] {
-       EdgeSprings({{0, 1}, {2, 2}}, three_points());
-     },
+    {"springs_repeated_index", [] { EdgeSprings({{0, 1}, {2, 2}}, three_points()); },
      "edge 1: vertex index 2 is repeated"},
     {"springs_zero_length",
      [] {
@@ -1219,45 +1205,23 @@ const BadInputCase kBadInputs[] = {
        EdgeSprings({{0, 1}, {1, 2}}, x);
      },
      "edge 1: rest position of vertex 2 is not finite"},
-    {"springs_validate_out_of_range",
-     [] {
-       EdgeSprings({{0, 1}, {1, 2}}, three_points()).validate(2);
-     },
+    {"springs_validate_out_of_range", [] { EdgeSprings({{0, 1}, {1, 2}}, three_points()).validate(2); },
      "edge 1: vertex index 2 out of range [0, 2)"},
     {"springs_stable_dt_short_masses",
-     [] {
-       (void)EdgeSprings({{0, 1}, {1, 2}}, three_points()).stable_dt(VectorXd::Ones(2));
-     },
+     [] { (void)EdgeSprings({{0, 1}, {1, 2}}, three_points()).stable_dt(VectorXd::Ones(2)); },
      "edge springs: stable_dt got 2 masses"},
-    {"membrane_nan_mu",
-     [] {
-       TriangleMembrane({{0, 1, 2}}, three_points(), {.mu = kNaN});
-     },
+    {"membrane_nan_mu", [] { TriangleMembrane({{0, 1, 2}}, three_points(), {.mu = kNaN}); },
      "triangle membrane: mu is nan"},
-    {"membrane_negative_beta",
-     [] {
-       TriangleMembrane({{0, 1, 2}}, three_points(), {.beta = -0.1});
-     },
+    {"membrane_negative_beta", [] { TriangleMembrane({{0, 1, 2}}, three_points(), {.beta = -0.1}); },
      "triangle membrane: beta is negative"},
     {"membrane_lambda_below_minus_mu",
-     [] {
-       TriangleMembrane({{0, 1, 2}}, three_points(), {.mu = 1.0, .lambda = -2.0});
-     },
+     [] { TriangleMembrane({{0, 1, 2}}, three_points(), {.mu = 1.0, .lambda = -2.0}); },
      "triangle membrane: lambda -2"},
-    {"membrane_index_out_of_range",
-     [] {
-       TriangleMembrane({{0, 1, 900}}, three_points());
-     },
+    {"membrane_index_out_of_range", [] { TriangleMembrane({{0, 1, 900}}, three_points()); },
      "triangle 0: vertex index 900 out of range [0, 3)"},
-    {"membrane_negative_index",
-     [] {
-       TriangleMembrane({{0, 1, 2}, {-1, 1, 2}}, three_points());
-     },
+    {"membrane_negative_index", [] { TriangleMembrane({{0, 1, 2}, {-1, 1, 2}}, three_points()); },
      "triangle 1: vertex index -1 out of range"},
-    {"membrane_repeated_index",
-     [] {
-       TriangleMembrane({{0, 1, 2}, {2, 1, 2}}, three_points());
-     },
+    {"membrane_repeated_index", [] { TriangleMembrane({{0, 1, 2}, {2, 1, 2}}, three_points()); },
      "triangle 1: vertex index 2 is repeated"},
     {"membrane_zero_area",
      [] {
@@ -1267,25 +1231,13 @@ const BadInputCase kBadInputs[] = {
        TriangleMembrane({{0, 1, 2}, {0, 1, 3}}, x);
      },
      "triangle 1 is degenerate (area 0)"},
-    {"bending_nan_stiffness",
-     [] {
-       DihedralBending({{0, 1, 2, 3}}, SingleHinge().rest, {.stiffness = kNaN});
-     },
+    {"bending_nan_stiffness", [] { DihedralBending({{0, 1, 2, 3}}, SingleHinge().rest, {.stiffness = kNaN}); },
      "dihedral bending: stiffness is nan"},
-    {"bending_negative_damping",
-     [] {
-       DihedralBending({{0, 1, 2, 3}}, SingleHinge().rest, {.damping = -1.0});
-     },
+    {"bending_negative_damping", [] { DihedralBending({{0, 1, 2, 3}}, SingleHinge().rest, {.damping = -1.0}); },
      "dihedral bending: damping is negative"},
-    {"bending_repeated_index",
-     [] {
-       DihedralBending({{0, 1, 2, 3}, {0, 1, 2, 2}}, SingleHinge().rest);
-     },
+    {"bending_repeated_index", [] { DihedralBending({{0, 1, 2, 3}, {0, 1, 2, 2}}, SingleHinge().rest); },
      "hinge 1: vertex index 2 is repeated"},
-    {"bending_index_out_of_range",
-     [] {
-       DihedralBending({{0, 1, 2, 4}}, SingleHinge().rest);
-     },
+    {"bending_index_out_of_range", [] { DihedralBending({{0, 1, 2, 4}}, SingleHinge().rest); },
      "hinge 0: vertex index 4 out of range [0, 4)"},
     {"bending_degenerate_wing",
      [] {
@@ -1302,61 +1254,34 @@ const BadInputCase kBadInputs[] = {
      },
      "hinge 0: shared edge (0, 1) has zero rest length"},
     {"bending_non_manifold_edge",
-     [] {
-       (void)DihedralBending::hinges_from_triangles({{0, 1, 2}, {1, 0, 3}, {0, 1, 4}});
-     },
+     [] { (void)DihedralBending::hinges_from_triangles({{0, 1, 2}, {1, 0, 3}, {0, 1, 4}}); },
      "edge (0, 1) is shared by 3 triangles"},
     {"bending_triangle_with_repeated_index",
-     [] {
-       (void)DihedralBending::hinges_from_triangles({{0, 1, 2}, {1, 1, 3}});
-     },
+     [] { (void)DihedralBending::hinges_from_triangles({{0, 1, 2}, {1, 1, 3}}); },
      "triangle 1: vertex index 1 is repeated"},
     {"tets_inverted_rest",
-     [] {
-       CorotatedTets({{0, 1, 2, 3}, {1, 3, 2, 4}}, five_points(Vec3(1.0, 1.0, 1.0)));
-     },
+     [] { CorotatedTets({{0, 1, 2, 3}, {1, 3, 2, 4}}, five_points(Vec3(1.0, 1.0, 1.0))); },
      "tet 1 is inverted (volume -"},
     {"tets_flat_rest",
-     [] {
-       CorotatedTets({{0, 1, 2, 3}, {1, 3, 2, 4}}, five_points(Vec3(0.5, 0.0, 0.5)));
-     },
+     [] { CorotatedTets({{0, 1, 2, 3}, {1, 3, 2, 4}}, five_points(Vec3(0.5, 0.0, 0.5))); },
      "tet 1 is degenerate (volume"},
-    {"tets_index_out_of_range",
-     [] {
-       CorotatedTets({{0, 1, 2, 3}, {1, 3, 2, 5}}, five_points(Vec3::Ones()));
-     },
+    {"tets_index_out_of_range", [] { CorotatedTets({{0, 1, 2, 3}, {1, 3, 2, 5}}, five_points(Vec3::Ones())); },
      "tet 1: vertex index 5 out of range [0, 5)"},
-    {"tets_repeated_index",
-     [] {
-       CorotatedTets({{0, 1, 2, 3}, {1, 3, 3, 4}}, five_points(Vec3::Ones()));
-     },
+    {"tets_repeated_index", [] { CorotatedTets({{0, 1, 2, 3}, {1, 3, 3, 4}}, five_points(Vec3::Ones())); },
      "tet 1: vertex index 3 is repeated"},
-    {"tets_negative_young",
-     [] {
-       CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.young_modulus = -5.0});
-     },
+    {"tets_negative_young", [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.young_modulus = -5.0}); },
      "corotated tets: young_modulus is negative"},
-    {"tets_zero_young",
-     [] {
-       CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.young_modulus = 0.0});
-     },
+    {"tets_zero_young", [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.young_modulus = 0.0}); },
      "corotated tets: young_modulus is 0"},
-    {"tets_nan_poisson",
-     [] {
-       CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.poisson_ratio = kNaN});
-     },
+    {"tets_nan_poisson", [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.poisson_ratio = kNaN}); },
      "corotated tets: poisson_ratio is nan"},
     {"tets_incompressible_poisson",
-     [] {
-       CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.poisson_ratio = 0.5});
-     },
+     [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.poisson_ratio = 0.5}); },
      "corotated tets: poisson_ratio 0.5 is outside (-1, 0.5)"},
-    {"tets_nan_beta",
-     [] {
-       CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.beta = kNaN});
-     },
+    {"tets_nan_beta", [] { CorotatedTets({{0, 1, 2, 3}}, single_tet_positions(), {.beta = kNaN}); },
      "corotated tets: beta is nan"},
 };
+// clang-format on
 
 INSTANTIATE_TEST_SUITE_P(AllForces, BadInput, ::testing::ValuesIn(kBadInputs),
                          [](const ::testing::TestParamInfo<BadInputCase>& case_info) { return case_info.param.label; });
