@@ -256,8 +256,11 @@ TEST(SceneLibrary, ListsEverySceneOnceAndNamesWhatItLacks) {
     EXPECT_EQ(std::count(bullet.begin(), bullet.end(), name), 1) << name;
   for (const char* name : {"hanging-cloth", "bench-curtain", "stability/spin_100", "toy-drop"})
     EXPECT_EQ(names.count(name), 1u) << name;
-  for (const scenes::SceneInfo& s : scenes::registered_scenes())
-    if (s.kind == scenes::SceneKind::bullet) EXPECT_NO_THROW(make_bullet_scene(s.name)) << s.name;
+  for (const scenes::SceneInfo& s : scenes::registered_scenes()) {
+    if (s.kind == scenes::SceneKind::bullet) {
+      EXPECT_NO_THROW(make_bullet_scene(s.name)) << s.name;
+    }
+  }
   auto message = [](auto&& f) {
     try {
       f();

@@ -492,8 +492,8 @@ INSTANTIATE_TEST_SUITE_P(
                                        s.multigrid = true;
                                        s.jacobi_preconditioner = false;
                                      }}),
-    [](const auto& info) {
-      std::string name = info.param.field;
+    [](const auto& param_info) {
+      std::string name = param_info.param.field;
       for (char& c : name)
         if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
       return name;

@@ -125,7 +125,7 @@ void HardBindings::resolve_chain(Index k, Chain& chain) const {
         for (std::size_t i = 0; i < m_linear.parents(code).size(); ++i)
           chain.next.push_back({m_linear.parents(code)[i], t.weight * m_linear.weights(code)[i]});
       } else if (kind != 1) {
-        fail("binding ", id, ": parent ", t.parent, " is a ", kinds()[static_cast<std::size_t>(kind)]->name(),
+        fail("binding ", id, ": parent ", t.parent, " is a ", kind_of(t.parent)->name(),
              ", which cannot be the parent of an embedded point");
       } else {
         if (chain.rigid_body >= 0 && chain.rigid_body != m_rigid.body(code))

@@ -61,7 +61,7 @@ struct SceneInfo {
   std::string name;         ///< one word of letters, digits and - _ . / ("curtain", "stability/spin_100")
   std::string description;  ///< one line
   SceneKind kind = SceneKind::core;
-  SceneFactory make;
+  SceneFactory make = {};
   /// The frame .ci/gallery pictures (frames counted from 1 at default_frame_dt); 0: no picture.
   int gallery_frame = 0;
   bool takes_grid = false;  ///< the factory reads SceneParams::nx, ny

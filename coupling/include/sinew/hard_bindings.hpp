@@ -117,7 +117,9 @@ class HardBindings {
  private:
   const BindingKind* kind_of(Index particle) const {
     if (particle < 0 || particle >= static_cast<Index>(m_kind_of.size()) || m_kind_of[particle] < 0) return nullptr;
-    return kinds()[static_cast<std::size_t>(m_kind_of[particle])];
+    const auto all = kinds();
+    const auto kind = static_cast<std::size_t>(m_kind_of[particle]);
+    return kind < all.size() ? all[kind] : nullptr;
   }
   std::array<BindingKind*, 2> mutable_kinds() { return {&m_linear, &m_rigid}; }
   void rebuild_lookup(Index particle_count);
