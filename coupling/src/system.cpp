@@ -64,6 +64,12 @@ Index System::add_particle(const Vec3& x, const Vec3& v, double mass) {
   m_particles.v.col(i) = v;
   m_input_mass.conservativeResize(i + 1);
   m_input_mass[i] = mass;
+  if (m_particles.mass.size() == i) {
+    // Added after set-up: its own mass until the next set-up distributes masses again, so that the
+    // diagnostics (momentum, energy) can count it in between.
+    m_particles.mass.conservativeResize(i + 1);
+    m_particles.mass[i] = mass;
+  }
   m_particles.kind.push_back(ParticleKind::free);
   m_input_kind.push_back(ParticleKind::free);
   m_geometry.group.push_back(kDefaultCollisionGroup);
@@ -271,11 +277,17 @@ void System::set_binding_spring_ends(Index spring, Index a, Index b) {
   if (a < 0 || a >= n || b < 0 || b >= n)
     fail("binding spring ", spring, ": ends ", a, " and ", b, " must be particles (0 to ", n - 1, ")");
   if (a == b) fail("binding spring ", spring, ": both ends are particle ", a);
-  if (m_finalized && !(m_inverse_effective_mass[a] + m_inverse_effective_mass[b] > 0.0))
+  if (m_springs.removed(spring)) fail("binding spring ", spring, " was removed");
+  for (Index end : {a, b})
+    if (m_input_kind[end] == ParticleKind::removed) fail("binding spring ", spring, ": end ", end, " was removed");
+  // Set up and unchanged since: the masses are current, so check the ends and damp the spring now;
+  // otherwise the next set-up does both.
+  const bool set_up = m_finalized && !m_topology_changed;
+  if (set_up && !(m_inverse_effective_mass[a] + m_inverse_effective_mass[b] > 0.0))
     fail("binding spring ", spring, ": ends ", a, " and ", b,
          " both have infinite mass (kinematic or on kinematic parents)");
   m_springs.set_ends(spring, a, b);
-  if (m_finalized) m_springs.set_damping_from_masses(m_inverse_effective_mass);
+  if (set_up) m_springs.set_damping_from_masses(m_inverse_effective_mass);
 }
 
 CollisionSource& System::add_collision_source(std::unique_ptr<CollisionSource> source) {
@@ -421,7 +433,9 @@ void System::compute_effective_masses() {
 }
 
 double System::effective_mass(Index particle) const {
-  if (!m_finalized) fail("effective_mass: finalize the system first");
+  if (!m_finalized || m_topology_changed)
+    fail("effective_mass: finalize the system first (after a topology change too)");
+  if (particle < 0 || particle >= m_particles.size()) fail("effective_mass: particle ", particle, " does not exist");
   return m_effective_mass[particle];
 }
 
