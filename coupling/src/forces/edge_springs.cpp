@@ -30,6 +30,17 @@ namespace {
 constexpr std::string_view kName = "edge springs";
 // An edge shorter than round-off of its coordinates has no usable direction.
 constexpr double kZeroLengthRelative = 1.0e-12;
+/// An edge's force g (3 doubles) added to its first end's coordinates (offset i in the flat array)
+/// and taken from its second's (offset j).
+[[gnu::always_inline]] inline void add_to_ends(double* out, Index i, Index j, const double* g) {
+  out[i] += g[0];
+  out[i + 1] += g[1];
+  out[i + 2] += g[2];
+  out[j] -= g[0];
+  out[j + 1] -= g[1];
+  out[j + 2] -= g[2];
+}
+
 }  // namespace
 
 EdgeSprings::EdgeSprings(std::vector<Edge> edges, const Vectors3& rest_x, const EdgeSpringsSettings& settings)
@@ -195,15 +206,8 @@ void EdgeSprings::add_implicit_products(const Vectors3& v, double b, Vectors3& f
       _mm_storeu_pd(g, _mm_unpacklo_pd(f0, f1));        // edge e: f0, f1
       _mm_storeu_pd(g + 2, _mm_shuffle_pd(f2, f0, 2));  // edge e: f2; edge e + 1: f0
       _mm_storeu_pd(g + 4, _mm_unpackhi_pd(f1, f2));    // edge e + 1: f1, f2
-      // Each coordinate receives edge e's term, then edge e + 1's: the order of the scalar loop.
-      for (int k = 0; k < 3; ++k) {
-        out[i0 + k] += g[k];
-        out[j0 + k] -= g[k];
-      }
-      for (int k = 0; k < 3; ++k) {
-        out[i1 + k] += g[3 + k];
-        out[j1 + k] -= g[3 + k];
-      }
+      add_to_ends(out, i0, j0, g);
+      add_to_ends(out, i1, j1, g + 3);
     }
 #endif
     for (; e < chunk.end; ++e) {
