@@ -587,6 +587,25 @@ TEST(BulletCoupling, CollisionFiltersFollowBulletsGroupsAndMasks) {
   }
 }
 
+// The world as the application changes it between ticks: gravity is read at every tick (a cloth falls
+// again once gravity is switched back on), and an object with CF_NO_CONTACT_RESPONSE, which Bullet
+// reports contacts for but resolves none, does not stop the cloth either.
+TEST(BulletCoupling, FollowsTheWorldsGravityAndContactResponseFlags) {
+  BulletWorld bw(btVector3(0, 0, 0));
+  btRigidBody* sensor = add_box(bw, btVector3(2, 0.05, 2), 0.0, scenes::at(btVector3(0, -0.05, 0)));
+  sensor->setCollisionFlags(sensor->getCollisionFlags() | btCollisionObject::CF_NO_CONTACT_RESPONSE);
+  bullet::Coupling coupling(&bw.world());
+  System& s = coupling.system();
+  scenes::ClothGridSettings c = small_cloth(Vec3(-0.25, 0.5, -0.25));
+  c.down = Vec3::UnitZ();
+  const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
+  for (int frame = 0; frame < 30; ++frame) bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+  EXPECT_NEAR(s.particles().x(1, cloth.node(0, 0)), 0.5, 1e-12) << "no gravity: the cloth stays";
+  bw.world().setGravity(btVector3(0, -9.81, 0));
+  for (int frame = 0; frame < 60; ++frame) bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+  EXPECT_LT(s.particles().x.row(1).maxCoeff(), -1.0) << "it fell through the sensor box";
+}
+
 // Known limit, kept disabled: a node heavier than its ring (0.1 kg on 0.05 kg, whose rotation about the
 // rod it then dominates) on a stiff spring at the ring's 4 cm lever. The bound point turns along an arc
 // while both solves move it along the tangent; the spring sees the difference, about dt^2 |w|^2 r per

@@ -290,6 +290,11 @@ void System::set_binding_spring_ends(Index spring, Index a, Index b) {
   if (set_up) m_springs.set_damping_from_masses(m_inverse_effective_mass);
 }
 
+void System::set_gravity(const Vec3& gravity) {
+  if (!all_finite(gravity)) fail("set_gravity: gravity (", gravity.transpose(), ") is not finite");
+  m_settings.gravity = gravity;
+}
+
 CollisionSource& System::add_collision_source(std::unique_ptr<CollisionSource> source) {
   if (!source) fail("add_collision_source: null source");
   m_collision_sources.push_back(std::move(source));

@@ -162,6 +162,8 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
     const btVector3& hi = m_aabb_max[o];
     if (p.x() < lo.x() || p.y() < lo.y() || p.z() < lo.z() || p.x() > hi.x() || p.y() > hi.y() || p.z() > hi.z())
       continue;
+    // CF_NO_CONTACT_RESPONSE: Bullet reports the object's contacts and resolves none; neither does sinew.
+    if (!objects[o]->hasContactResponse()) continue;
     if (const btBroadphaseProxy* proxy = objects[o]->getBroadphaseHandle())
       if (!c.geometry->collides(i, static_cast<std::uint32_t>(proxy->m_collisionFilterGroup),
                                 static_cast<std::uint32_t>(proxy->m_collisionFilterMask)))

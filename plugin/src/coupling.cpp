@@ -116,6 +116,7 @@ Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m
   SystemSettings system = settings.system;
   system.absorb_bound_mass_into_rigid_bodies = false;
   if (settings.use_world_gravity) system.gravity = to_eigen(world->getGravity());
+  m_use_world_gravity = settings.use_world_gravity;
   m_system = System(system);
   {
     std::lock_guard<std::mutex> lock(g_registry_mutex);
@@ -229,6 +230,8 @@ Index Coupling::attach(Index point, btRigidBody* body, const Vec3& local, double
 // binding springs between rigid bodies, whose v^{n+1} flips sign every step. Bullet's own velocity
 // changes in step 7 (contacts, constraints) are kept on top.
 StepStats Coupling::tick(double dt) {
+  // The world's gravity as it is now: an application may change it between ticks.
+  if (m_use_world_gravity) m_system.set_gravity(to_eigen(m_world->getGravity()));
   copy_state_in();
   copy_joints_in(dt);
   m_last = m_system.advance(dt);  // substeps when the tick exceeds the elastic forces' stable step

@@ -222,6 +222,8 @@ class System {
   void set_joint_rows(std::vector<JointRow> rows);
   const std::vector<JointRow>& joint_rows() const { return m_joint_rows; }
   StepSettings& step_settings() { return m_step_settings; }
+  /// Changes gravity between steps (a rigid solver's world may change its own); validated.
+  void set_gravity(const Vec3& gravity);
   const SystemSettings& settings() const { return m_settings; }
 
   /// Resolves binding chains, distributes masses, computes effective masses and spring damping.

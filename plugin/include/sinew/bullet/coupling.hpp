@@ -24,7 +24,8 @@ class btRigidBody;
 namespace sinew::bullet {
 
 struct CouplingSettings {
-  /// Gravity for the deformables is read from the world; rigid bodies get theirs from Bullet alone.
+  /// Gravity for the deformables is read from the world at every tick (so world->setGravity takes
+  /// effect at the next one); rigid bodies get theirs from Bullet alone.
   bool use_world_gravity = true;
   /// Settings of the deformable system; absorb_bound_mass_into_rigid_bodies is forced off because
   /// Bullet owns the bodies' mass properties (the mass of a point hard-bound to a body is dropped).
@@ -100,6 +101,7 @@ class Coupling {
   std::vector<JointRow> m_joint_rows;
   std::vector<btScalar> m_joint_buffer;  // Bullet's btConstraintInfo2 arrays for one joint
   bool m_handed_over = false;
+  bool m_use_world_gravity = true;
   void (*m_app_pre_tick)(btDynamicsWorld*, btScalar) = nullptr;
   void (*m_app_post_tick)(btDynamicsWorld*, btScalar) = nullptr;
   StepStats m_last;
