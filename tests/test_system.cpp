@@ -518,6 +518,36 @@ TEST_P(StepSettingsValidation, StepAndAdvanceRefuseItByNameAndStepOnceFixed) {
   EXPECT_LT(s.particles().x(1, p), 0.0);  // gravity moved it: the step ran
 }
 
+// Builders refuse bad settings by name before they add anything: a negative or NaN stiffness used to
+// drop its force silently, a NaN origin read as "the mesh has no area".
+TEST(System, BuildersNameBadSettingsAndAddNothing) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const std::pair<std::function<void(ClothGridSettings&)>, std::string> cases[] = {
+      {[](ClothGridSettings& c) { c.stretch_stiffness = -200.0; }, "stretch_stiffness"},
+      {[&](ClothGridSettings& c) { c.bending_stiffness = nan; }, "bending_stiffness"},
+      {[](ClothGridSettings& c) { c.membrane_lambda = -1.0; }, "membrane_lambda"},
+      {[&](ClothGridSettings& c) { c.stretch_damping = nan; }, "stretch_damping"},
+      {[&](ClothGridSettings& c) { c.origin.x() = nan; }, "origin"},
+      {[](ClothGridSettings& c) { c.down = c.across; }, "parallel"},
+      {[](ClothGridSettings& c) { c.nx = -3; }, "-3 x"},
+      {[&](ClothGridSettings& c) { c.width = nan; }, "width"},
+      {[](ClothGridSettings& c) { c.mass = 0.0; }, "mass"},
+  };
+  for (const auto& [change, needle] : cases) {
+    System s;
+    ClothGridSettings c = test::square_cloth(4, 0.3, Vec3::Zero());
+    change(c);
+    try {
+      add_cloth_grid(s, c);
+      ADD_FAILURE() << "expected an error naming " << needle;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+    }
+    EXPECT_EQ(s.particles().size(), 0) << needle;
+    EXPECT_TRUE(s.forces().empty()) << needle;
+  }
+}
+
 TEST(System, NonFiniteStateStopsTheStepNamingPhaseAndParticle) {
   System s;
   s.add_particle(Vec3::Zero(), Vec3::Zero(), 1.0);

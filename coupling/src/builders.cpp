@@ -6,6 +6,7 @@
 #include "sinew/forces/triangle_membrane.hpp"
 
 #include <algorithm>
+#include <utility>
 
 namespace sinew {
 
@@ -39,11 +40,39 @@ std::vector<std::array<Index, 3>> boundary_triangles(const std::vector<std::arra
   return boundary;
 }
 
+// Every material field finite and non-negative (a force whose stiffness is 0 is left out; a negative
+// or NaN one is an error, not a silently missing force), named in the message.
+void check_material(const ClothMaterial& s) {
+  if (!(std::isfinite(s.mass) && s.mass > 0)) fail("cloth: mass ", s.mass, " must be positive and finite");
+  const std::pair<const char*, double> fields[] = {{"stretch_stiffness", s.stretch_stiffness},
+                                                   {"stretch_damping", s.stretch_damping},
+                                                   {"bending_stiffness", s.bending_stiffness},
+                                                   {"bending_damping", s.bending_damping},
+                                                   {"membrane_mu", s.membrane_mu},
+                                                   {"membrane_lambda", s.membrane_lambda},
+                                                   {"membrane_damping", s.membrane_damping}};
+  for (const auto& [name, value] : fields)
+    if (!(std::isfinite(value) && value >= 0.0))
+      fail("cloth: ", name, " = ", value, " must be non-negative and finite");
+}
+
+void check_vertices(const char* what, const Vectors3& vertices) {
+  for (Index v = 0; v < vertices.cols(); ++v)
+    if (!vertices.col(v).allFinite()) fail(what, ": vertex ", v, " is not finite (", vertices.col(v).transpose(), ")");
+}
+
 }  // namespace
 
 ClothGrid add_cloth_grid(System& system, const ClothGridSettings& s) {
   if (s.nx < 2 || s.ny < 2) fail("cloth grid: needs at least 2 x 2 nodes, got ", s.nx, " x ", s.ny);
-  if (!(s.width > 0 && s.height > 0)) fail("cloth grid: width and height must be positive");
+  if (!(std::isfinite(s.width) && std::isfinite(s.height) && s.width > 0 && s.height > 0))
+    fail("cloth grid: width ", s.width, " and height ", s.height, " must be positive and finite");
+  if (!(all_finite(s.origin) && all_finite(s.across) && all_finite(s.down)))
+    fail("cloth grid: origin, across and down must be finite");
+  if (!(s.across.cross(s.down).norm() > 1e-12 * s.across.norm() * s.down.norm()))
+    fail("cloth grid: across (", s.across.transpose(), ") and down (", s.down.transpose(),
+         ") must be non-zero and not parallel");
+  check_material(s);
   ClothGrid grid;
   grid.nx = s.nx;
   grid.ny = s.ny;
@@ -71,7 +100,8 @@ ClothGrid add_cloth_grid(System& system, const ClothGridSettings& s) {
 
 std::vector<Index> add_cloth_mesh(System& system, const Vectors3& vertices,
                                   const std::vector<std::array<Index, 3>>& triangles, const ClothMaterial& s) {
-  if (!(std::isfinite(s.mass) && s.mass > 0)) fail("cloth: mass ", s.mass, " must be positive");
+  check_material(s);
+  check_vertices("cloth", vertices);
   if (triangles.empty()) fail("cloth: no triangles");
   const Index count = vertices.cols();
   // Lumped masses: a third of each triangle's area share of the total to each of its vertices.
@@ -125,6 +155,7 @@ std::vector<Index> add_volume(System& system, const Vectors3& vertices, const st
                               const VolumeMaterial& m) {
   if (!(std::isfinite(m.density) && m.density > 0)) fail("volume: density ", m.density, " must be positive");
   if (tets.empty()) fail("volume: no tets");
+  check_vertices("volume", vertices);
   const Index count = vertices.cols();
   std::vector<double> mass(static_cast<std::size_t>(count), 0.0);
   for (std::size_t t = 0; t < tets.size(); ++t) {
