@@ -560,5 +560,38 @@ TEST(System, NonFiniteStateStopsTheStepNamingPhaseAndParticle) {
   EXPECT_NE(message.find("particle 1"), std::string::npos) << message;
 }
 
+// A step that throws leaves the state of its start: here a collision source fails in step 3, after
+// steps 1 and 2 have moved everything, and the system is exactly where it was (the same hash), and
+// steps on once the source is gone. A NaN put into the state between steps is named at the step's
+// start, a body's before the points bound to it.
+TEST(System, AFailedStepLeavesTheStateOfItsStart) {
+  System s;
+  const ClothGrid cloth = add_cloth_grid(s, test::square_cloth(5, 0.4, Vec3(0, 1, 0)));
+  RigidBodySettings rb;
+  rb.x = Vec3(0, 2, 0);
+  const Index body = s.add_rigid_body(rb);
+  s.bind_rigid_here(cloth.node(0, 0), body);
+  for (int k = 0; k < 5; ++k) s.step(1.0 / 240);
+  const std::uint64_t before = s.state_hash();
+  bool fail_now = true;
+  s.add_collision_source(make_collision_source("failing", [&](CollisionContext&) {
+    if (fail_now) fail("the source failed");
+  }));
+  EXPECT_NE(error_of([&] { s.step(1.0 / 240); }).find("the source failed"), std::string::npos);
+  EXPECT_EQ(s.state_hash(), before);
+  fail_now = false;
+  s.step(1.0 / 240);
+  EXPECT_NE(s.state_hash(), before);
+
+  s.rigid_bodies().w(0, body) = std::nan("");
+  const std::string message = error_of([&] { s.step(1.0 / 240); });
+  EXPECT_NE(message.find("at the step's start: rigid body 0"), std::string::npos) << message;
+  s.rigid_bodies().w(0, body) = 0.0;
+  s.particles().v(1, cloth.node(3, 3)) = std::nan("");
+  const std::string node = error_of([&] { s.step(1.0 / 240); });
+  EXPECT_NE(node.find("particle " + std::to_string(cloth.node(3, 3)) + " has a non-finite velocity"), std::string::npos)
+      << node;
+}
+
 }  // namespace
 }  // namespace sinew

@@ -49,34 +49,41 @@ StepStats Newmark::step(const StepModel& s, double dt) {
   StepStats stats;
   stats.substeps = 1;
   stats.dt = dt;
+  check_finite(s, "the state at the step's start");
   save_state(s);
-  m_constraints.prepare_joints(s.joint_rows, s.bodies);
+  // A step that throws (a non-finite value, a bad collision constraint, a stalled solve) leaves the
+  // state of its start, so the caller can change what diverged and step again.
+  try {
+    m_constraints.prepare_joints(s.joint_rows, s.bodies);
 
-  auto t = Clock::now();
-  implicit_half_velocity(s, dt, stats);
-  check_finite(s, "step 1 (implicit half velocity)");
-  stats.ms.implicit_half_velocity = ms_since(t);
+    auto t = Clock::now();
+    implicit_half_velocity(s, dt, stats);
+    check_finite(s, "step 1 (implicit half velocity)");
+    stats.ms.implicit_half_velocity = ms_since(t);
 
-  t = Clock::now();
-  advance_positions(s, dt);
-  check_finite(s, "step 2 (advance positions)");
-  stats.ms.advance_positions = ms_since(t);
+    t = Clock::now();
+    advance_positions(s, dt);
+    check_finite(s, "step 2 (advance positions)");
+    stats.ms.advance_positions = ms_since(t);
 
-  t = Clock::now();
-  process_collisions(s, dt);
-  check_finite(s, "step 3 (process collisions)");
-  stats.ms.process_collisions = ms_since(t);
+    t = Clock::now();
+    process_collisions(s, dt);
+    check_finite(s, "step 3 (process collisions)");
+    stats.ms.process_collisions = ms_since(t);
 
-  t = Clock::now();
-  backward_euler_velocity(s, dt, stats);
-  check_finite(s, "step 4 (backward Euler velocity)");
-  stats.ms.backward_euler_velocity = ms_since(t);
+    t = Clock::now();
+    backward_euler_velocity(s, dt, stats);
+    check_finite(s, "step 4 (backward Euler velocity)");
+    stats.ms.backward_euler_velocity = ms_since(t);
 
-  t = Clock::now();
-  extrapolate_velocity(s);
-  check_finite(s, "step 5 (extrapolate velocity)");
-  stats.ms.extrapolate_velocity = ms_since(t);
-
+    t = Clock::now();
+    extrapolate_velocity(s);
+    check_finite(s, "step 5 (extrapolate velocity)");
+    stats.ms.extrapolate_velocity = ms_since(t);
+  } catch (...) {
+    restore_start_state(s);
+    throw;
+  }
   stats.ms.total = ms_since(start);
   ++m_step_count;
   return stats;
@@ -526,7 +533,23 @@ void Newmark::check_constraint(const StepModel& s, const CollisionConstraint& c,
   }
 }
 
+void Newmark::restore_start_state(const StepModel& s) {
+  s.particles.x = m_x_n;
+  s.particles.v = m_v_n;
+  s.bodies.x = m_body_x_n;
+  s.bodies.v = m_body_v_n;
+  s.bodies.w = m_body_w_n;
+  for (Index b = 0; b < m_unknowns.r; ++b) s.bodies.q[b] = m_body_q_n[b];
+  s.hard.update_rigid_offsets(s.bodies);
+}
+
+// Bodies first: a body's bad state reaches the points bound to it, and the body is what to name.
 void Newmark::check_finite(const StepModel& s, const char* phase) const {
+  const auto& bodies = s.bodies;
+  for (Index b = 0; b < m_unknowns.r; ++b)
+    if (!all_finite(bodies.x.col(b)) || !all_finite(bodies.v.col(b)) || !all_finite(bodies.w.col(b)) ||
+        !std::isfinite(bodies.q[b].norm()))
+      fail("Newmark step ", m_step_count, ", ", phase, ": rigid body ", b, " has a non-finite state");
   const auto& p = s.particles;
   for (Index i = 0; i < m_unknowns.n; ++i) {
     if (!all_finite(p.x.col(i)))
@@ -536,11 +559,6 @@ void Newmark::check_finite(const StepModel& s, const char* phase) const {
       fail("Newmark step ", m_step_count, ", ", phase, ": particle ", i, " has a non-finite velocity (",
            p.v.col(i).transpose(), ")");
   }
-  const auto& bodies = s.bodies;
-  for (Index b = 0; b < m_unknowns.r; ++b)
-    if (!all_finite(bodies.x.col(b)) || !all_finite(bodies.v.col(b)) || !all_finite(bodies.w.col(b)) ||
-        !std::isfinite(bodies.q[b].norm()))
-      fail("Newmark step ", m_step_count, ", ", phase, ": rigid body ", b, " has a non-finite state");
 }
 
 }  // namespace sinew

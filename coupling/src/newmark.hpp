@@ -68,6 +68,8 @@ class Newmark {
     return m_has_damping || s.springs.size() > 0 || m_implicit_elasticity || m_constraints.has_joints();
   }
   void check_finite(const StepModel& s, const char* phase) const;
+  /// Puts back the positions, velocities and frames save_state kept (after a step that threw).
+  void restore_start_state(const StepModel& s);
   /// Throws naming `source` unless c is a valid stencil on rows with unknowns.
   void check_constraint(const StepModel& s, const CollisionConstraint& c, std::string_view source) const;
 
