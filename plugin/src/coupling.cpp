@@ -234,7 +234,22 @@ StepStats Coupling::tick(double dt) {
   if (m_use_world_gravity) m_system.set_gravity(to_eigen(m_world->getGravity()));
   copy_state_in();
   copy_joints_in(dt);
-  m_last = m_system.advance(dt);  // substeps when the tick exceeds the elastic forces' stable step
+  // A tick that throws leaves the state of its start: the deformables and rigid-body particles as
+  // they were, no collision impulse handed over, and Bullet's gathered forces cleared (the exception
+  // leaves stepSimulation before Bullet's own clearForces, and the next call would add gravity again).
+  m_tick_start_x = m_system.particles().x;
+  m_tick_start_v = m_system.particles().v;
+  m_tick_start_bodies = m_system.rigid_bodies();
+  try {
+    m_last = m_system.advance(dt);  // substeps when the tick exceeds the elastic forces' stable step
+  } catch (...) {
+    m_system.particles().x = m_tick_start_x;
+    m_system.particles().v = m_tick_start_v;
+    m_system.rigid_bodies() = m_tick_start_bodies;
+    if (m_collisions) m_collisions->discard_pending_impulses();
+    m_world->clearForces();
+    throw;
+  }
   if (m_collisions) m_collisions->apply_pending_impulses();
   hand_over_position_velocity(dt);
   return m_last;

@@ -43,6 +43,8 @@ class BulletCollisions final : public CollisionSource {
   void process(CollisionContext& context) override;
   /// Applies the summed impulses on dynamic bodies without a rigid-body particle, once each.
   void apply_pending_impulses();
+  /// Forgets them (the tick that gathered them failed).
+  void discard_pending_impulses() { m_pending.clear(); }
   /// Deepest penetration below the thickness seen at the last call, before projection [m].
   double deepest_penetration() const { return m_deepest; }
   int contacts() const { return m_contacts; }

@@ -102,6 +102,8 @@ class Coupling {
   std::vector<btScalar> m_joint_buffer;  // Bullet's btConstraintInfo2 arrays for one joint
   bool m_handed_over = false;
   bool m_use_world_gravity = true;
+  Vectors3 m_tick_start_x, m_tick_start_v;  // the deformables at the tick's start (restored if it throws)
+  RigidBodyParticles m_tick_start_bodies;
   void (*m_app_pre_tick)(btDynamicsWorld*, btScalar) = nullptr;
   void (*m_app_post_tick)(btDynamicsWorld*, btScalar) = nullptr;
   StepStats m_last;
