@@ -51,6 +51,7 @@ void Constraints::prepare_collisions() {
     }
   }
   if (!m_collision_groups.empty()) {
+    Index largest = 0, largest_rank = 0;
     // Rows J (one per constraint, w_a n^T on each stencil particle's 3 columns) and targets per group.
     std::vector<std::vector<std::size_t>> rows(m_collision_groups.size());
     for (std::size_t k = 0; k < m_collisions.size(); ++k) {
@@ -85,7 +86,11 @@ void Constraints::prepare_collisions() {
       group.basis = svd.matrixV().leftCols(rank);
       const VectorXd coefficients = (svd.matrixU().leftCols(rank).transpose() * t).cwiseQuotient(sigma.head(rank));
       group.particular = group.basis * coefficients;
+      largest = std::max(largest, 3 * k);
+      largest_rank = std::max(largest_rank, rank);
     }
+    m_group_scratch.resize(largest);
+    m_group_coefficients.resize(largest_rank);
   }
   for (const CollisionConstraint& c : m_collisions)
     for (int a = 0; a < c.size; ++a) {
@@ -99,9 +104,12 @@ void Constraints::prepare_collisions() {
 void Constraints::project_collision_groups(GeneralizedVector& u, bool impose_targets) const {
   for (const CollisionGroup& g : m_collision_groups) {
     const Index k = static_cast<Index>(g.particles.size());
-    VectorXd u_g(3 * k);
+    // Scratch sized by prepare_collisions: no allocation inside the solves' iterations.
+    auto u_g = m_group_scratch.head(3 * k);
+    auto coefficients = m_group_coefficients.head(g.basis.cols());
     for (Index j = 0; j < k; ++j) u_g.segment<3>(3 * j) = u.particles.col(g.particles[static_cast<std::size_t>(j)]);
-    u_g -= g.basis * (g.basis.transpose() * u_g);
+    coefficients.noalias() = g.basis.transpose() * u_g;
+    u_g.noalias() -= g.basis * coefficients;
     if (impose_targets) u_g += g.particular;
     for (Index j = 0; j < k; ++j) u.particles.col(g.particles[static_cast<std::size_t>(j)]) = u_g.segment<3>(3 * j);
   }

@@ -59,6 +59,7 @@ class Constraints {
   std::vector<CollisionGroup> m_collision_groups;
   std::vector<Index> m_collision_root;  // per particle: union-find parent, -1 when in no constraint
   std::vector<Index> m_collision_count, m_collision_group_of;
+  mutable VectorXd m_group_scratch, m_group_coefficients;  // project_collision_groups' scratch
   struct JointGroup {
     std::vector<Index> bodies;  // ascending
     Eigen::MatrixXd basis;      // 6k x rank, orthonormal, spanning the rows
