@@ -145,6 +145,10 @@ void HardBindings::update_rigid_offsets(const RigidBodyParticles& bodies) {
   for (BindingKind* kind : mutable_kinds()) kind->update_offsets(bodies);
 }
 
+void HardBindings::set_step_arms(const std::vector<Mat3>& arm_maps, const std::vector<Mat3>& angular_maps) {
+  for (BindingKind* kind : mutable_kinds()) kind->set_step_arms(arm_maps, angular_maps);
+}
+
 void HardBindings::clamp_positions(Vectors3& x, const Vectors3& body_x) const {
   for (const BindingKind* kind : kinds()) kind->clamp_positions(x, body_x);
 }

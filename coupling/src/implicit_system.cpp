@@ -56,4 +56,31 @@ void ImplicitSystem::apply(const GeneralizedVector& u, GeneralizedVector& out) {
   m_constraints.project_constraints(out);
 }
 
+void ImplicitSystem::implicit_forces(const GeneralizedVector& u, const Vectors3& offset, Vectors3& f) {
+  const StepModel& s = *m_model;
+  m_tmp_v = u.particles;
+  s.hard.clamp_velocities(m_tmp_v, u.rigid);
+  m_tmp_v += offset;
+  s.soft.synchronize(m_tmp_v);
+  f.setZero();
+  for (const auto& force : s.forces) force->add_implicit_products(m_tmp_v, implicit_b(*force, m_k.beta_el), f);
+  s.springs.add_linear_forces(m_tmp_v, 1.0, m_k.beta, f);
+}
+
+void ImplicitSystem::apply_bound_offset(const Vectors3& offset, GeneralizedVector& out) {
+  const StepModel& s = *m_model;
+  const double h = m_k.h;
+  m_tmp_v = offset;
+  m_apply_f.setZero();
+  m_apply_wrench.setZero();
+  s.soft.synchronize(m_tmp_v);
+  for (const auto& f : s.forces) f->add_implicit_products(m_tmp_v, implicit_b(*f, m_k.beta_el), m_apply_f);
+  s.springs.add_linear_forces(m_tmp_v, 1.0, m_k.beta, m_apply_f);
+  s.soft.gather_synchronized(m_apply_f);
+  s.hard.distribute(m_apply_f, m_apply_wrench);
+  for (Index i = 0; i < m_unknowns.n; ++i) out.particles.col(i) = (h * m_unknowns.dynamic_mask[i]) * m_apply_f.col(i);
+  for (Index b = 0; b < m_unknowns.r; ++b)
+    out.rigid.col(b) = m_unknowns.dynamic_body[b] ? Vec6(h * m_apply_wrench.col(b)) : Vec6::Zero();
+}
+
 }  // namespace sinew

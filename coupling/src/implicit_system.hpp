@@ -28,6 +28,13 @@ class ImplicitSystem final : public LinearOperator {
   }
 
   void apply(const GeneralizedVector& u, GeneralizedVector& out) override;
+  /// out = -h W^T (D + beta K + beta_el K+) o: the implicit forces' impulse from the velocities `offset`
+  /// on the bound rows alone (zero on every other row and twist). The step's points on rigid frames
+  /// move with W u + o (Newmark::set_step_maps), so S u = c + out.
+  void apply_bound_offset(const Vectors3& offset, GeneralizedVector& out);
+  /// f = -(D + beta K + beta_el K+) v on every row, for the velocities v = W u + offset (before W^T):
+  /// the implicit forces' part of what each point feels at u.
+  void implicit_forces(const GeneralizedVector& u, const Vectors3& offset, Vectors3& f);
   void precondition(const GeneralizedVector& r, GeneralizedVector& z) override {
     m_preconditioner.apply(r, z, m_constraints);
   }

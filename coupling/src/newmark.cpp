@@ -1,6 +1,8 @@
 #include "newmark.hpp"
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
+
 #include <chrono>
 
 namespace sinew {
@@ -26,7 +28,22 @@ void Newmark::allocate(const StepModel& s) {
   m_body_q_n.assign(static_cast<std::size_t>(r), Quat::Identity());
   m_body_q_np1 = m_body_q_n;
   m_body_I.assign(static_cast<std::size_t>(r), Mat3::Zero());
-  for (GeneralizedVector* g : {&m_c, &m_y, &m_product, &m_product0, &m_guess, &m_last_half}) g->resize(n, r);
+  m_body_I_n = m_body_I;
+  m_arm_maps.assign(static_cast<std::size_t>(r), Mat3::Identity());
+  m_angular_maps = m_arm_maps;
+  m_turn.setZero(3, r);
+  m_w_lin.setZero(3, r);
+  m_u.setZero(3, n);
+  m_bound_offset.setZero(3, n);
+  m_has_bound_offset = false;
+  // A body's radius of gyration: where a change of its inertia shows as a velocity.
+  m_body_gyration.setZero(r);
+  for (Index b = 0; b < r; ++b)
+    if (m_unknowns.dynamic_body[b])
+      m_body_gyration[b] = std::sqrt(s.bodies.inertia.col(b).maxCoeff() / s.bodies.mass[b]);
+  for (GeneralizedVector* g : {&m_c, &m_y, &m_product, &m_product0, &m_guess, &m_last_half, &m_lin, &m_saved_half})
+    g->resize(n, r);
+  m_geometric.assign(static_cast<std::size_t>(r), Mat3::Zero());
   m_last_dt = 0.0;
   m_guess_trial = 0;
   m_extrapolate = false;
@@ -49,6 +66,7 @@ StepStats Newmark::step(const StepModel& s, double dt) {
   StepStats stats;
   stats.substeps = 1;
   stats.dt = dt;
+  m_dt = dt;
   check_finite(s, "the state at the step's start");
   save_state(s);
   // A step that throws (a non-finite value, a bad collision constraint, a stalled solve) leaves the
@@ -96,6 +114,8 @@ void Newmark::save_state(const StepModel& s) {
   s.hard.clamp_positions(s.particles.x, s.bodies.x);
   s.hard.clamp_velocities(s.particles.v, s.bodies.v, s.bodies.w);
   s.soft.synchronize(s.particles, true, true);
+  m_r_n.resize(static_cast<std::size_t>(s.hard.rigid_count()));
+  for (Index k = 0; k < s.hard.rigid_count(); ++k) m_r_n[k] = s.hard.rigid_offset_world(k);
   m_x_n = s.particles.x;
   m_v_n = s.particles.v;
   auto& bodies = s.bodies;
@@ -124,9 +144,16 @@ void Newmark::implicit_half_velocity(const StepModel& s, double dt, StepStats& s
   const double h = 0.5 * dt;
   auto t = Clock::now();
   update_body_inertias(s);
+  m_body_I_n = m_body_I;
   for (const auto& f : s.forces) f->update_position_state(s.particles.x);
-  compute_forces(s, s.particles.x);
+  predict_angular_velocities(dt);
+  set_step_maps(s, dt, true, ChordForm::derivative);
+  const SolveCoefficients k{h, h, m_implicit_elasticity ? h : 0.0};
+  m_system.set(s, k, m_body_I);
+  compute_forces(s, s.particles.x, true);
+  add_geometric_stiffness(s, k, dt, ChordForm::derivative);
   build_rhs(s, h, m_v_n, m_body_v_n, m_body_L_n);
+  add_bound_offset_impulse();
   bool trial = false;
   GeneralizedVector* alternative = choose_step1_guess(s, dt, trial);
   m_constraints.collisions().clear();  // collisions are inactive in the first solve
@@ -136,16 +163,242 @@ void Newmark::implicit_half_velocity(const StepModel& s, double dt, StepStats& s
   t = Clock::now();
   const bool linear_solve = needs_linear_solve(s);
   const bool history = m_last_dt > 0.0;
-  const SolveResult result = solve(s, {h, h, m_implicit_elasticity ? h : 0.0}, linear_solve, true, alternative,
-                                   history ? Alternative::if_smaller : Alternative::if_exact);
+  const SolveResult result =
+      solve(s, k, linear_solve, true, alternative, history ? Alternative::if_smaller : Alternative::if_exact);
   if (trial) m_extrapolate = result.took_alternative;
   stats.ms.cg += ms_since(t);
   stats.linear_solve = linear_solve;
   record_solve(result, stats.cg_iterations_step1, stats);
-
   keep_half_velocity(s);
+
+  // Newton's iteration over the frames' turns: relinearise the points' chords at the last answer and
+  // solve again from it, until the chords the solve used are the chords of its answer.
+  auto pass = [&](ChordForm form) {
+    t = Clock::now();
+    m_w_lin = s.bodies.w;
+    set_step_maps(s, dt, true, form);
+    m_system.set(s, k, m_body_I);
+    compute_forces(s, s.particles.x, true);
+    add_geometric_stiffness(s, k, dt, form);
+    build_rhs(s, h, m_v_n, m_body_v_n, m_body_L_n);
+    add_bound_offset_impulse();
+    stats.ms.forces += ms_since(t);
+    t = Clock::now();
+    const SolveResult again = solve(s, k, linear_solve, false);  // the last preconditioner is close enough
+    stats.ms.cg += ms_since(t);
+    record_solve(again, stats.cg_iterations_step1, stats);
+    ++stats.rotation_iterations;
+    keep_half_velocity(s);
+    return chord_error(s, dt);
+  };
+  const double tolerance = s.settings.cg_tolerance;
+  const int passes = s.settings.rotation_iterations;
+  bool turned = chord_error(s, dt) <= tolerance;
+  for (int i = 1; !turned && i < passes; ++i) turned = pass(ChordForm::derivative) <= tolerance;
+  m_form = ChordForm::derivative;
+  if (turned && s.hard.rigid_count() > 0) {
+    // From Newton's answer, the fixed point of the arms J(theta) r (the work-conserving form, see
+    // above); kept if it converges, else Newton's answer stands.
+    m_saved_half.particles = m_y.particles;
+    m_saved_half.rigid = m_y.rigid;
+    // It stalls near the solves' own accuracy (each answer is good to the tolerance only), where it
+    // holds; well above it, it does not contract (a chain whipping round) and Newton's answer stands.
+    double error = kInfinity;
+    bool held = false;
+    for (int i = 0; i < passes && !held; ++i) {
+      const double e = pass(ChordForm::arm);
+      held = e <= tolerance;
+      if (!(e < error)) break;
+      error = e;
+    }
+    held = held || error <= 10.0 * tolerance;
+    if (held) {
+      m_form = ChordForm::arm;
+    } else {
+      m_y.particles = m_saved_half.particles;
+      m_y.rigid = m_saved_half.rigid;
+      keep_half_velocity(s);
+    }
+  }
+  stats.cg_converged = stats.cg_converged && turned;
+  for (Index b = 0; b < m_unknowns.r; ++b) {  // the geometric stiffness belongs to the iteration over the turns
+    m_body_I[b] -= m_geometric[b];
+    m_geometric[b].setZero();
+  }
   if (m_implicit_elasticity && linear_solve)
-    for (int k = 0; k < s.settings.newton_iterations; ++k) newton_iteration(s, dt, stats);
+    for (int i = 0; i < s.settings.newton_iterations; ++i) newton_iteration(s, dt, stats);
+  // The frames turn with the answer (step 2), and step 4 sees the chords there, in the same form.
+  m_w_lin = s.bodies.w;
+  set_step_maps(s, dt, false, m_form);
+}
+
+// ---- rigid frames over the step ---------------------------------------------------------------
+//
+// Over a step a body turns by theta = dt w^{n+1/2} (step 2), so a point at offset r on it moves by
+// the chord dt u with
+//
+//   u(v, w) = v + (R(theta) - I) r / dt,
+//
+// not by dt (v + w x r): the tangent is |theta|^2 |r| / 2 off the arc. Binding springs and elements
+// see the points' positions x^n + h u (step 1) and x^{n+1/2} (step 4); a spring of stiffness k
+// would kick every such miss back with k |theta|^2 |r| / 2, which for a light body on a stiff spring
+// is no longer small against anything (a 0.1 kg rod hung on 1e9 N/m gained 1e244 times its energy
+// in 600 steps at 1/60 s). So the solves use the chords, linearised at an angular velocity w0 (a
+// Newton iteration, step 1 repeating it at each answer until the chords it used are its answer's):
+//
+//   u(v, w) ~ v + (A w) x r' + o,   r' = R(theta0) r,   A = J(theta0) dtheta/dw / dt,
+//   o = (R(theta0) - I) r / dt - (A w0) x r',
+//
+// from d/dtheta (R(theta) r) = -(R(theta) r)* J(theta) (J: rotation_left_jacobian). The points on
+// frames thus sit at their end-of-step offsets r' and move with the angular velocity A w (W = [I
+// -r'* A], hard bindings' set_step_arms), plus an offset o that the step moves to the right-hand side
+// (ImplicitSystem::apply_bound_offset). W^T maps a force f on a point to (f, A^T (r' x f)), the
+// derivative of the point's chord: step 1 is then the stationary point of
+//   1/2 |t - t^n|_M^2 + E(x^n + h u(t)) - h F_ext . t
+// over the twists and velocities t (E: the implicit forces' energy), and Newton's iteration, with the
+// same symmetric operator CG needs, converges to it: fast, as the only term it drops, the curvature
+// of the chords times the forces on the points, is small against the springs' stiffness that makes
+// the problem hard. Where StepSettings::max_rotation_per_step cuts theta to the limit along w,
+// dtheta/dw keeps only the change of direction. Step 1 takes each dynamic body's inertia at its
+// half-step orientation, R(theta/2) I R(theta/2)^T (StepSettings::gyroscopic_correction), lagged one
+// iteration.
+
+Vec3 Newmark::turn_of(const Vec3& w, double dt, double limit) {
+  const double angle = dt * w.norm();
+  return angle > limit ? Vec3((limit / angle) * dt * w) : Vec3(dt * w);
+}
+
+// Step 1's first linearisation: at the angular velocities the step-1 guess predicts, w^n + (dt /
+// dt_last)(w^n - w^{n-1/2}) (exact under a constant angular acceleration), or w^n on the first step.
+void Newmark::predict_angular_velocities(double dt) {
+  const bool history = m_last_dt > 0.0;
+  const double ratio = history ? dt / m_last_dt : 0.0;
+  for (Index b = 0; b < m_unknowns.r; ++b) {
+    Vec3 w = m_body_w_n.col(b);
+    if (history && m_unknowns.dynamic_body[b]) w += ratio * (w - Vec3(m_last_half.rigid.col(b).tail<3>()));
+    m_w_lin.col(b) = w;
+  }
+}
+
+// The turns, arms, angular maps and offsets of the linearisation at m_w_lin (see above), set on the
+// bindings; with `inertias`, step 1's half-step inertias of the dynamic bodies.
+void Newmark::set_step_maps(const StepModel& s, double dt, bool inertias, ChordForm form) {
+  const double limit = s.settings.max_rotation_per_step;
+  for (Index b = 0; b < m_unknowns.r; ++b) {
+    const Vec3 w = m_w_lin.col(b);
+    const Vec3 turn = turn_of(w, dt, limit);
+    m_turn.col(b) = turn;
+    const Mat3 R = rotation_from_vector(turn).toRotationMatrix();
+    m_arm_maps[b] = R * m_body_q_n[b].toRotationMatrix();
+    Mat3 dturn = Mat3::Identity();  // dtheta/dw / dt
+    const double speed = w.norm();
+    if (dt * speed > limit) {
+      const Vec3 axis = w / speed;
+      dturn = limit / (dt * speed) * (Mat3::Identity() - axis * axis.transpose());
+    }
+    m_angular_maps[b] = rotation_left_jacobian(turn) * dturn;
+    if (form == ChordForm::arm) {  // u = v + w x (scale J(theta) r) exactly at this w
+      const double scale = dt * speed > limit ? limit / (dt * speed) : 1.0;
+      m_arm_maps[b] = scale * rotation_left_jacobian(turn) * m_body_q_n[b].toRotationMatrix();
+      m_angular_maps[b] = Mat3::Identity();
+    }
+    if (inertias && m_unknowns.dynamic_body[b]) {
+      if (s.settings.gyroscopic_correction) {
+        const Mat3 half = rotation_from_vector(0.5 * turn).toRotationMatrix();
+        m_body_I[b] = half * m_body_I_n[b] * half.transpose();
+      } else {
+        m_body_I[b] = m_body_I_n[b];
+      }
+    }
+  }
+  s.hard.set_step_arms(m_arm_maps, m_angular_maps);
+  m_has_bound_offset = false;
+  for (Index k = 0; k < s.hard.rigid_count(); ++k) {
+    const Index b = s.hard.rigid_body(k);
+    const Vec3 w = m_w_lin.col(b);
+    const Vec3 arm = s.hard.rigid_offset_world(k);
+    const Vec3 chord = rotation_from_vector(m_turn.col(b)) * m_r_n[k] - m_r_n[k];
+    const Vec3 o = chord / dt - Vec3(m_angular_maps[b] * w).cross(arm);
+    m_bound_offset.col(s.hard.rigid_particle(k)) = o;
+    m_has_bound_offset = m_has_bound_offset || !o.isZero(0.0);
+  }
+}
+
+// The largest difference, over the points on frames, between the chord velocity of the current
+// answer (the bodies' twists) and the one the solve used, linearised at m_w_lin; for the dynamic
+// bodies also the change of the half-step inertia as a velocity at the radius of gyration.
+double Newmark::chord_error(const StepModel& s, double dt) const {
+  const double limit = s.settings.max_rotation_per_step;
+  double error = 0.0;
+  for (Index k = 0; k < s.hard.rigid_count(); ++k) {
+    const Index b = s.hard.rigid_body(k);
+    const Vec3 w = s.bodies.w.col(b);
+    const Vec3 chord = (rotation_from_vector(turn_of(w, dt, limit)) * m_r_n[k] - m_r_n[k]) / dt;
+    const Vec3 used = Vec3(m_angular_maps[b] * w).cross(s.hard.rigid_offset_world(k)) +
+                      Vec3(m_bound_offset.col(s.hard.rigid_particle(k)));
+    error = std::max(error, (chord - used).norm());
+  }
+  if (s.settings.gyroscopic_correction) {
+    for (Index b = 0; b < m_unknowns.r; ++b) {
+      if (!m_unknowns.dynamic_body[b]) continue;
+      const Vec3 w = s.bodies.w.col(b);
+      const Vec3 turn = turn_of(w, dt, limit);
+      const Mat3 half = rotation_from_vector(0.5 * turn).toRotationMatrix();
+      const Mat3 I = half * m_body_I_n[b] * half.transpose();
+      const Vec3 dw = I.inverse() * ((I - (m_body_I[b] - m_geometric[b])) * w);
+      error = std::max(error, dw.norm() * m_body_gyration[b]);
+    }
+  }
+  return error;
+}
+
+// The geometric stiffness of the chords (Newton's iteration over the turns, see set_step_maps): the
+// Hessian of E(x^n + h u(t)) has, besides h^2 W^T K W, the term h lambda . d2u/dw2 with lambda =
+// dE/dx = -f the force on each point at the linearisation, and d2u/dw2 = dt d2(R(theta) r)/dtheta2,
+// which at the arm a = R(theta) r is, to leading order, the symmetric
+//   H = h dt [ (lambda a^T + a lambda^T) / 2 - (lambda . a) I ].
+// Against a body's inertia it is not small: a point pulled outward with tension T (a pendulum's
+// hinge, a chain's joints) gets h dt T |a| (I - a a^T / |a|^2), of the order of dt^2 T / (m |a|)
+// times the inertia, which for a whipping chain is order one; Newton without it overshoots and
+// settles into two-cycles. Each body's sum is projected onto its positive semidefinite part (a
+// compressed point's negative curvature would make the system indefinite for CG) and added to
+// its step-1 inertia, with H w0 on the right-hand side, so that the solve is Newton's step.
+void Newmark::add_geometric_stiffness(const StepModel& s, const SolveCoefficients& k, double dt, ChordForm form) {
+  // The arm form's arm J(theta) r turns half as fast with w as the end offset does.
+  const double curvature = form == ChordForm::arm ? 0.5 * dt : dt;
+  if (s.hard.rigid_count() == 0) return;
+  for (Mat3& g : m_geometric) g.setZero();
+  m_lin.particles = s.particles.v;
+  m_lin.rigid.topRows<3>() = s.bodies.v;
+  m_lin.rigid.bottomRows<3>() = m_w_lin;
+  m_system.implicit_forces(m_lin, m_bound_offset, m_u);
+  for (Index j = 0; j < s.hard.rigid_count(); ++j) {
+    const Index b = s.hard.rigid_body(j);
+    if (!m_unknowns.dynamic_body[b]) continue;
+    const Index i = s.hard.rigid_particle(j);
+    const Vec3 lambda = -(Vec3(m_bound_force.col(i)) + Vec3(m_u.col(i)));
+    const Vec3 a = s.hard.rigid_offset_world(j);
+    m_geometric[b] += (k.h * curvature) *
+                      (0.5 * (lambda * a.transpose() + a * lambda.transpose()) - lambda.dot(a) * Mat3::Identity());
+  }
+  for (Index b = 0; b < m_unknowns.r; ++b) {
+    if (!m_unknowns.dynamic_body[b] || m_geometric[b].isZero(0.0)) continue;
+    Eigen::SelfAdjointEigenSolver<Mat3> eig(m_geometric[b]);
+    const Vec3 positive = eig.eigenvalues().cwiseMax(0.0);
+    m_geometric[b] = eig.eigenvectors() * positive.asDiagonal() * eig.eigenvectors().transpose();
+    m_body_I[b] += m_geometric[b];
+  }
+}
+
+// c += -h W^T (D + beta K) o: the offsets' share of the implicit forces (ImplicitSystem::
+// apply_bound_offset), with the coefficients m_system was last set with.
+void Newmark::add_bound_offset_impulse() {
+  for (Index b = 0; b < m_unknowns.r; ++b)
+    if (m_unknowns.dynamic_body[b]) m_c.rigid.col(b).tail<3>() += m_geometric[b] * m_w_lin.col(b);
+  if (!m_has_bound_offset) return;
+  m_system.apply_bound_offset(m_bound_offset, m_product0);
+  m_c.particles += m_product0.particles;
+  m_c.rigid += m_product0.rigid;
 }
 
 // Initial guess from the last step: v^{n+1/2} ~ v^n + (dt / dt_last) (v^n - v^{n-1/2}), as
@@ -259,6 +512,7 @@ void Newmark::newton_iteration(const StepModel& s, double dt, StepStats& stats) 
   m_system.apply(m_y, m_product0);
   m_c.particles += m_product.particles - m_product0.particles;
   m_c.rigid += m_product.rigid - m_product0.rigid;
+  add_bound_offset_impulse();  // damping's share only: the stiffness sees x_mid, whose chords hold o
   stats.ms.forces += ms_since(t);
 
   t = Clock::now();
@@ -271,39 +525,43 @@ void Newmark::newton_iteration(const StepModel& s, double dt, StepStats& stats) 
   keep_half_velocity(s);
 }
 
-// Step 2: x~^{n+1} = x^n + dt v~^{n+1/2}; rigid frames x_c += dt v_c, q = q(dt w^{n+1/2}) q^n
-// (section 5, step 3). Velocities return to v^n, which step 3 turns into v~^n.
+// Step 2: x~^{n+1} = x^n + dt v~^{n+1/2}; rigid frames x_c += dt v_c, q = q(theta) q^n with the
+// turn theta = dt w^{n+1/2} (section 5, step 3), and the points on them exactly on their frames.
+// Velocities return to v^n, which step 3 turns into v~^n.
 void Newmark::advance_positions(const StepModel& s, double dt) {
   move_positions(s, dt);
+  s.hard.update_rigid_offsets(s.bodies);
+  s.hard.clamp_positions(s.particles.x, s.bodies.x);
   s.particles.v = m_v_n;
   s.bodies.v = m_body_v_n;
   s.bodies.w = m_body_w_n;
   s.hard.clamp_velocities(s.particles.v, s.bodies.v, s.bodies.w);
 }
 
-// Positions x^n + tau v~^{n+1/2} on the particles that move (dynamic and kinematic rows), rigid frames
-// x_c + tau v_c and q(tau w) q^n with the bodies' current (step 1's) twists, bound rows from their
-// parents; velocities untouched.
+// Positions a fraction tau / dt along the step: x^n + tau u on the rows that move (dynamic,
+// kinematic and hard-bound), u the step's velocities with the bound rows' from the step's arms, so
+// that a point on a frame is on its chord; frames at x_c + tau v_c and q(tau/dt theta) q^n.
+// Velocities untouched; the arms stay.
 void Newmark::move_positions(const StepModel& s, double tau) {
   auto& p = s.particles;
-  for (Index i = 0; i < m_unknowns.n; ++i)
-    if (is_dynamic(p.kind[i]) || p.kind[i] == ParticleKind::kinematic)
-      p.x.col(i) = m_x_n.col(i) + tau * m_v_half.col(i);
-  auto& bodies = s.bodies;
-  const bool gyroscopic = s.settings.gyroscopic_correction;
-  for (Index b = 0; b < m_unknowns.r; ++b) {
-    Vec3 w = bodies.w.col(b);
-    if (gyroscopic && m_unknowns.dynamic_body[b]) {
-      // w(t) = I(t)^-1 L drifts even without torque when I0 is not isotropic: dw/dt = I^-1 (L x w).
-      // Rotating with the midpoint value keeps the orientation update second order.
-      const Vec3 L = m_body_I[b] * w;
-      w += 0.5 * tau * (m_body_I[b].inverse() * L.cross(w));
+  m_u = m_v_half;
+  s.hard.clamp_velocities(m_u, s.bodies.v, s.bodies.w);
+  if (m_has_bound_offset)
+    for (Index k = 0; k < s.hard.rigid_count(); ++k) {
+      const Index i = s.hard.rigid_particle(k);
+      m_u.col(i) += m_bound_offset.col(i);
     }
-    bodies.x.col(b) = m_body_x_n.col(b) + tau * bodies.v.col(b);
-    bodies.q[b] = (rotation_from_vector(tau * w) * m_body_q_n[b]).normalized();
+  for (Index i = 0; i < m_unknowns.n; ++i) {
+    const ParticleKind kind = p.kind[i];
+    if (is_dynamic(kind) || kind == ParticleKind::kinematic || kind == ParticleKind::hard_bound)
+      p.x.col(i) = m_x_n.col(i) + tau * m_u.col(i);
   }
-  s.hard.update_rigid_offsets(bodies);
-  s.hard.clamp_positions(p.x, bodies.x);
+  auto& bodies = s.bodies;
+  const double fraction = tau / m_dt;
+  for (Index b = 0; b < m_unknowns.r; ++b) {
+    bodies.x.col(b) = m_body_x_n.col(b) + tau * bodies.v.col(b);
+    bodies.q[b] = (rotation_from_vector(fraction * Vec3(m_turn.col(b))) * m_body_q_n[b]).normalized();
+  }
 }
 
 void Newmark::restore_positions(const StepModel& s) {
@@ -311,7 +569,6 @@ void Newmark::restore_positions(const StepModel& s) {
   auto& bodies = s.bodies;
   bodies.x = m_body_x_n;
   for (Index b = 0; b < m_unknowns.r; ++b) bodies.q[b] = m_body_q_n[b];
-  s.hard.update_rigid_offsets(bodies);
 }
 
 // Step 3: (x~^{n+1}, v^n) -> (x^{n+1}, v~^n). Deformables only (section 5, step 4): the collision
@@ -362,13 +619,18 @@ void Newmark::backward_euler_velocity(const StepModel& s, double dt, StepStats& 
   auto& p = s.particles;
   auto& bodies = s.bodies;
   m_v_tilde_n = p.v;
+  // Every row at the midpoint of its chord, points on frames included (not on the half-turned frame,
+  // which is |theta|^2 |r| / 8 outside the chord): with the step's arms the binding springs then do
+  // exactly the work of their chords (see set_step_maps).
   for (Index i = 0; i < u.n; ++i) p.x.col(i) = 0.5 * (m_x_n.col(i) + m_x_np1.col(i));
   for (Index b = 0; b < u.r; ++b) {
     bodies.x.col(b) = 0.5 * (m_body_x_n.col(b) + m_body_x_np1.col(b));
-    bodies.q[b] = m_body_q_n[b].slerp(0.5, m_body_q_np1[b]).normalized();
+    // Half the step's turn, and half of what step 3 turned the frame on top of it (drift push-back).
+    const Quat half = rotation_from_vector(0.5 * Vec3(m_turn.col(b)));
+    const Quat rest = m_body_q_np1[b] * (half * half * m_body_q_n[b]).conjugate();
+    bodies.q[b] = (Quat::Identity().slerp(0.5, rest) * half * m_body_q_n[b]).normalized();
   }
-  s.hard.update_rigid_offsets(bodies);
-  s.hard.clamp_positions(p.x, bodies.x);
+  s.hard.set_step_arms(m_arm_maps, m_angular_maps);  // the chords linearised at step 1's answer
   s.soft.synchronize(p, true, false);
   update_body_inertias(s);
   for (const auto& f : s.forces) f->update_position_state(p.x);
@@ -379,6 +641,10 @@ void Newmark::backward_euler_velocity(const StepModel& s, double dt, StepStats& 
   // Rigid rows start from v~^n = (v_c, L^n): L is the momentum-like state, so w is recomputed with
   // the inertia at the half-step orientation.
   build_rhs(s, h, m_v_tilde_n, bodies.v, m_body_L_n);
+  const double beta = mode == BindingSpringStep4::implicit_half_step ? h : 0.0;
+  const SolveCoefficients k{h, beta, m_implicit_elasticity ? h : 0.0};
+  m_system.set(s, k, m_body_I);
+  add_bound_offset_impulse();
   // Initial guess: step 1's half-step velocity v~^{n+1/2} on the unknowns (it solves nearly the same
   // system at nearly the same configuration, so CG starts O(dt) from the answer instead of O(dt)
   // times the accelerations away), the prescribed values on constrained rows. The result is the
@@ -397,8 +663,7 @@ void Newmark::backward_euler_velocity(const StepModel& s, double dt, StepStats& 
   stats.ms.forces += ms_since(t);
 
   t = Clock::now();
-  const double beta = mode == BindingSpringStep4::implicit_half_step ? h : 0.0;
-  const SolveResult result = solve(s, {h, beta, m_implicit_elasticity ? h : 0.0}, needs_linear_solve(s), false);
+  const SolveResult result = solve(s, k, needs_linear_solve(s), false);
   stats.ms.cg += ms_since(t);
   record_solve(result, stats.cg_iterations_step4, stats);
   m_v_half = m_y.particles;

@@ -43,7 +43,15 @@ class Newmark {
   GeneralizedVector* choose_step1_guess(const StepModel& s, double dt, bool& trial);
   void keep_half_velocity(const StepModel& s);          // step 1's answer in m_y -> m_v_half, m_twist_half, v, w
   void move_positions(const StepModel& s, double tau);  // x^n + tau v~^{n+1/2}, frames likewise (velocities kept)
-  void restore_positions(const StepModel& s);           // back to x^n, exactly
+  // The rigid frames over the step: their turns and the points' chords (see set_step_maps).
+  static Vec3 turn_of(const Vec3& w, double dt, double limit);
+  void predict_angular_velocities(double dt);
+  enum class ChordForm { derivative, arm };
+  void set_step_maps(const StepModel& s, double dt, bool inertias, ChordForm form);
+  double chord_error(const StepModel& s, double dt) const;
+  void add_bound_offset_impulse();
+  void add_geometric_stiffness(const StepModel& s, const SolveCoefficients& k, double dt, ChordForm form);
+  void restore_positions(const StepModel& s);  // back to x^n, exactly
 
   /// Step1Guess::adaptive tries both step-1 guesses once in this many steps.
   static constexpr int kGuessTrialSteps = 8;
@@ -75,6 +83,7 @@ class Newmark {
 
   bool m_allocated = false;
   long m_step_count = 0;
+  double m_dt = 0.0;  // the current step
   Unknowns m_unknowns;
   Constraints m_constraints;
   Preconditioner m_preconditioner;
@@ -88,6 +97,20 @@ class Newmark {
   Vectors3 m_body_x_n, m_body_v_n, m_body_w_n, m_body_L_n, m_body_x_np1;
   std::vector<Quat> m_body_q_n, m_body_q_np1;
   std::vector<Mat3> m_body_I;
+  std::vector<Mat3> m_body_I_n;      // world inertias at q^n
+  Vectors3 m_turn;                   // each body's turn over the step, theta (rotation vector)
+  Vectors3 m_w_lin;                  // the angular velocities the chords are linearised at
+  std::vector<Mat3> m_arm_maps;      // r0 -> the arm R(theta) R(q^n) r0 (the end-of-step offset)
+  std::vector<Mat3> m_angular_maps;  // w -> the angular velocity the points move with, A w
+  std::vector<Vec3> m_r_n;           // world offsets of the points on frames at t^n
+  Vectors3 m_bound_offset;           // o on the rows of points on frames, 0 elsewhere
+  bool m_has_bound_offset = false;
+  VectorXd m_body_gyration;                  // radius of gyration of each dynamic body
+  std::vector<Mat3> m_geometric;             // per body: the chords' geometric stiffness in step 1 (w-w block)
+  GeneralizedVector m_lin;                   // the twists and velocities step 1 is linearised at
+  GeneralizedVector m_saved_half;            // Newton's answer, while the arm form is tried from it
+  ChordForm m_form = ChordForm::derivative;  // the form of this step's answer
+  Vectors3 m_u;                              // scratch: velocities with the bound rows' chords
   GeneralizedVector m_c, m_y, m_product, m_product0;
   GeneralizedVector m_guess;  // step 1's second initial guess M^-1 c (first step), later the extrapolation's increment
   GeneralizedVector m_last_half;  // the last step's v^{n+1/2} (particles and twists), for step 1's guess

@@ -64,4 +64,19 @@ Quat rotation_from_vector(const Vec3& theta) {
   return Quat(Eigen::AngleAxisd(angle, theta / angle));
 }
 
+Mat3 rotation_left_jacobian(const Vec3& theta) {
+  const double t2 = theta.squaredNorm();
+  const Mat3 c = cross_matrix(theta);
+  double a, b;  // (1 - cos t) / t^2 and (t - sin t) / t^3, by their series near 0 (round-off otherwise)
+  if (t2 < 1e-6) {
+    a = 0.5 - t2 / 24.0 * (1.0 - t2 / 30.0);
+    b = 1.0 / 6.0 - t2 / 120.0 * (1.0 - t2 / 42.0);
+  } else {
+    const double t = std::sqrt(t2);
+    a = (1.0 - std::cos(t)) / t2;
+    b = (t - std::sin(t)) / (t2 * t);
+  }
+  return Mat3::Identity() + a * c + b * c * c;
+}
+
 }  // namespace sinew

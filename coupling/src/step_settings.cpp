@@ -14,6 +14,9 @@ void validate(const StepSettings& s) {
   // Above 1 the substep exceeds the explicit forces' stable step: advance() would diverge by design.
   if (!(s.cfl > 0.0 && s.cfl <= 1.0)) fail("step settings: cfl = ", s.cfl, ", must be in (0, 1]");
   if (s.max_substeps < 1) fail("step settings: max_substeps = ", s.max_substeps, ", must be >= 1");
+  if (!(s.max_rotation_per_step > 0.0))
+    fail("step settings: max_rotation_per_step = ", s.max_rotation_per_step, ", must be positive (or infinite)");
+  if (s.rotation_iterations < 1) fail("step settings: rotation_iterations = ", s.rotation_iterations, ", must be >= 1");
   if (s.multigrid && !s.jacobi_preconditioner)
     fail("step settings: multigrid needs jacobi_preconditioner (block Jacobi is its finest level)");
 }

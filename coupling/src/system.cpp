@@ -30,6 +30,7 @@ StepStats& StepStats::operator+=(const StepStats& o) {
   cg_iterations_step1 += o.cg_iterations_step1;
   cg_iterations_step4 += o.cg_iterations_step4;
   newton_iterations += o.newton_iterations;
+  rotation_iterations += o.rotation_iterations;
   cg_residual = std::max(cg_residual, o.cg_residual);
   cg_converged = cg_converged && o.cg_converged;
   linear_solve = linear_solve || o.linear_solve;

@@ -74,6 +74,9 @@ class HardBindings {
   // ---- W, W^T over every binding -----------------------------------------------------------------
   /// Caches r = R(q) r0 for every rigid binding; call whenever orientations change.
   void update_rigid_offsets(const RigidBodyParticles& bodies);
+  /// Within a step's solves: every point on body b at arm_maps[b] r0, moving with angular_maps[b] w
+  /// (BindingKind::set_step_arms); update_rigid_offsets puts the frames' offsets back.
+  void set_step_arms(const std::vector<Mat3>& arm_maps, const std::vector<Mat3>& angular_maps);
   /// x_e = W x for every bound row (positions of parents and centres of mass).
   void clamp_positions(Vectors3& x, const Vectors3& body_x) const;
   /// v_e = W (v, twist) for every bound row, twist = (v_c, w) stacked 6 x R.

@@ -55,4 +55,10 @@ Index add_rigid_body(RigidBodyParticles& bodies, const RigidBodySettings& settin
 /// Rotation by the rotation vector theta (angle |theta| about theta/|theta|): q(theta).
 Quat rotation_from_vector(const Vec3& theta);
 
+/// The left Jacobian of the rotation group at theta, J(theta) = sum_k (theta*)^k / (k+1)!
+///   = I + (1 - cos t)/t^2 theta* + (t - sin t)/t^3 theta*^2,   t = |theta|,
+/// for which R(theta) r - r = theta x (J(theta) r) for every r: a point at offset r on a frame turned by
+/// theta moves along the chord theta x J r, whatever the angle (J r is the arm that chord is seen from).
+Mat3 rotation_left_jacobian(const Vec3& theta);
+
 }  // namespace sinew

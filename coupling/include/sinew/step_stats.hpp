@@ -27,8 +27,13 @@ struct StepStats {
   int cg_iterations_step1 = 0;  ///< summed over substeps
   int cg_iterations_step4 = 0;
   int newton_iterations = 0;  ///< StepSettings::newton_iterations done (their CG iterations count in step 1's)
-  double cg_residual = 0;     ///< largest final residual [m/s] over all solves
-  bool cg_converged = true;   ///< every solve reached the tolerance
+  /// Step 1 solves repeated because a rigid body's turn over the step came out different from the one
+  /// its points' arms were set from (StepSettings::rotation_iterations); their CG iterations count
+  /// in step 1's.
+  int rotation_iterations = 0;
+  double cg_residual = 0;  ///< largest final residual [m/s] over all solves
+  /// Every solve reached the tolerance, and every body's turn agreed with its arms to it.
+  bool cg_converged = true;
   bool linear_solve = false;  ///< false when the scene has no implicit term (diagonal solve)
   /// dt * sum of the forces mapped onto soft-bound particles in step 4: the momentum the mapping adds
   /// to the system (section 3: soft particles duplicate mass, and the mapping duplicates momentum).

@@ -119,9 +119,19 @@ struct StepSettings {
   /// advance() throws rather than take more substeps than this in one frame: a stable step that
   /// small usually means a stiffness or mass set wrongly, not a scene worth grinding through.
   int max_substeps = 100000;
-  /// Second-order rotation update: w^{n+1/2} ~ w + dt/2 I^-1 (L x w) for the torque-free drift of
-  /// the angular velocity of an asymmetric body.
+  /// Step 1 takes each body's inertia at its half-step orientation, R(theta/2) I R(theta/2)^T, which
+  /// gives w^{n+1/2} ~ w + dt/2 I^-1 (L x w): the torque-free drift of an asymmetric body's angular
+  /// velocity, to second order. Off: the inertia at t^n (first order).
   bool gyroscopic_correction = true;
+  /// A rigid body turns by at most this angle [rad] in one step; a faster spin keeps its angular
+  /// velocity but its frame and the points on it move as if it turned by this much (Bullet limits
+  /// every body's turn to pi/4 per step the same way, and the Bullet coupling sets that value).
+  double max_rotation_per_step = kInfinity;
+  /// Step 1 is solved again, from its last answer, while some body's turn over the step differs from
+  /// the one its points' arms were set from by more than cg_tolerance (as a velocity at the body's
+  /// reach): the arms make the points' step velocities their actual chords (see Newmark::set_turns).
+  /// At most this many solves; StepStats::cg_converged turns false if the turn still moves.
+  int rotation_iterations = 20;
 };
 /// Throws sinew::Error naming the first setting out of range; System::step and advance call it.
 void validate(const StepSettings& settings);

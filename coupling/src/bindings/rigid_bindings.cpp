@@ -77,8 +77,15 @@ void RigidBindings::release_masses(RigidBodyParticles& bodies) {
 }
 
 void RigidBindings::update_offsets(const RigidBodyParticles& bodies) {
+  m_angular.clear();
   if (m_r.cols() != size()) m_r.setZero(3, size());
   for (Index k = 0; k < size(); ++k) m_r.col(k) = bodies.q[m_body[k]] * m_r0[k];
+}
+
+void RigidBindings::set_step_arms(const std::vector<Mat3>& arm_maps, const std::vector<Mat3>& angular_maps) {
+  if (m_r.cols() != size()) m_r.setZero(3, size());
+  for (Index k = 0; k < size(); ++k) m_r.col(k) = arm_maps[m_body[k]] * m_r0[k];
+  m_angular = angular_maps;
 }
 
 void RigidBindings::clamp_positions(Vectors3& x, const Vectors3& body_x) const {
@@ -86,26 +93,33 @@ void RigidBindings::clamp_positions(Vectors3& x, const Vectors3& body_x) const {
 }
 
 void RigidBindings::clamp_velocities(Vectors3& v, const Vectors3& body_v, const Vectors3& body_w) const {
+  const bool mapped = !m_angular.empty();
   for (Index k = 0; k < size(); ++k) {
     const Index b = m_body[k];
-    v.col(m_particle[k]) = body_v.col(b) + Vec3(body_w.col(b)).cross(Vec3(m_r.col(k)));
+    const Vec3 w = mapped ? Vec3(angular(b) * body_w.col(b)) : Vec3(body_w.col(b));
+    v.col(m_particle[k]) = body_v.col(b) + w.cross(Vec3(m_r.col(k)));
   }
 }
 
 void RigidBindings::clamp_velocities(Vectors3& v, const Vectors6& twist) const {
+  const bool mapped = !m_angular.empty();
   for (Index k = 0; k < size(); ++k) {
-    const auto t = twist.col(m_body[k]);
-    const Vec3 w = t.tail<3>();
+    const Index b = m_body[k];
+    const auto t = twist.col(b);
+    const Vec3 w = mapped ? Vec3(angular(b) * t.tail<3>()) : Vec3(t.tail<3>());
     v.col(m_particle[k]) = t.head<3>() + w.cross(Vec3(m_r.col(k)));
   }
 }
 
 void RigidBindings::distribute(Vectors3& f, Vectors6& wrench) const {
+  const bool mapped = !m_angular.empty();
   for (Index k = 0; k < size(); ++k) {
+    const Index b = m_body[k];
     const Vec3 fe = f.col(m_particle[k]);
-    auto w = wrench.col(m_body[k]);
+    const Vec3 torque = Vec3(m_r.col(k)).cross(fe);
+    auto w = wrench.col(b);
     w.head<3>() += fe;
-    w.tail<3>() += Vec3(m_r.col(k)).cross(fe);
+    w.tail<3>() += mapped ? Vec3(angular(b).transpose() * torque) : torque;
     f.col(m_particle[k]).setZero();
   }
 }
@@ -115,16 +129,19 @@ void RigidBindings::distribute_masses(VectorXd& mass) const {
   for (Index k = 0; k < size(); ++k) mass[m_particle[k]] = 0.0;
 }
 
-// W^T B W with W = [I  r*^T]: the bound point's block seen by the body's twist.
+// W^T B W with W = [I  P], P = r*^T A (A = I outside a step's solves): the bound point's block seen by
+// the body's twist.
 void RigidBindings::add_preconditioner_blocks(DiagonalBlocks& blocks, std::vector<Mat6>& body_blocks) const {
+  const bool mapped = !m_angular.empty();
   for (Index k = 0; k < size(); ++k) {
     const Mat3 d = Eigen::Map<const Mat3>(blocks.col(m_particle[k]).data());
     const Mat3 rs = cross_matrix(offset_world(k));
+    const Mat3 P = mapped ? Mat3(rs.transpose() * angular(m_body[k])) : Mat3(rs.transpose());
     Mat6& block = body_blocks[m_body[k]];
     block.topLeftCorner<3, 3>() += d;
-    block.topRightCorner<3, 3>() += d * rs.transpose();
-    block.bottomLeftCorner<3, 3>() += rs * d;
-    block.bottomRightCorner<3, 3>() += rs * d * rs.transpose();
+    block.topRightCorner<3, 3>() += d * P;
+    block.bottomLeftCorner<3, 3>() += P.transpose() * d;
+    block.bottomRightCorner<3, 3>() += P.transpose() * d * P;
   }
 }
 

@@ -42,6 +42,12 @@ class BindingKind {
   // ---- W and W^T over every binding of the kind ----------------------------------------------------
   /// Caches what depends on the rigid frames' orientations (world offsets); call when they change.
   virtual void update_offsets(const RigidBodyParticles& bodies) { (void)bodies; }
+  /// Within a step's solves: each rigid frame's points sit at arm_maps[b] r0 and move with the
+  /// angular velocity angular_maps[b] w (see Newmark::set_step_maps): W (v, w) = v + (A w) x r and
+  /// W^T f = (f, A^T (r x f)), which the preconditioner blocks use too, until the next update_offsets.
+  virtual void set_step_arms(const std::vector<Mat3>& arm_maps, const std::vector<Mat3>& angular_maps) {
+    (void)arm_maps, (void)angular_maps;
+  }
   /// x_e = W x_parents (body_x: the rigid bodies' centres of mass, 3 x R).
   virtual void clamp_positions(Vectors3& x, const Vectors3& body_x) const = 0;
   /// v_e = W v_parents, rigid twists given as linear and angular velocities (3 x R each).

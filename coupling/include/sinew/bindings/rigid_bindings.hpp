@@ -19,7 +19,7 @@ class RigidBindings final : public BindingKind {
   bool on_rigid_frames() const override { return true; }
   Index body(Index k) const { return m_body[k]; }
   const Vec3& offset_body(Index k) const { return m_r0[k]; }
-  /// r = R(q) r0 at the frames of the last update_offsets call.
+  /// r = R(q) r0 at the frames of the last update_offsets call (or the step's arm after set_step_arms).
   Vec3 offset_world(Index k) const { return m_r.col(k); }
   void set_offset_body(Index k, const Vec3& r0) { m_r0[k] = r0; }
   Index id(Index k) const override { return m_id[k]; }
@@ -39,6 +39,7 @@ class RigidBindings final : public BindingKind {
   void release_masses(RigidBodyParticles& bodies);
 
   void update_offsets(const RigidBodyParticles& bodies) override;
+  void set_step_arms(const std::vector<Mat3>& arm_maps, const std::vector<Mat3>& angular_maps) override;
   void clamp_positions(Vectors3& x, const Vectors3& body_x) const override;
   void clamp_velocities(Vectors3& v, const Vectors3& body_v, const Vectors3& body_w) const override;
   void clamp_velocities(Vectors3& v, const Vectors6& twist) const override;
@@ -60,7 +61,11 @@ class RigidBindings final : public BindingKind {
   std::vector<Index> m_particle;
   std::vector<Index> m_body;
   std::vector<Vec3> m_r0;
-  Vectors3 m_r;  // cached world offsets (3 x size)
+  Vectors3 m_r;  // cached world offsets (3 x size), or the step's arms
+  // Within a step's solves, per body: the map A from the body's angular velocity to the one its points
+  // move with (W = [I  -r* A]); empty while the points move with w itself.
+  std::vector<Mat3> m_angular;
+  const Mat3& angular(Index b) const { return m_angular[static_cast<std::size_t>(b)]; }
   // Per body that absorb_masses changed: its own mass and principal moments, and where its own frame
   // sits in the merged one (centre d and rotation q_rel, constant while the body moves rigidly).
   struct Absorbed {
