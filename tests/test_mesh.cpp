@@ -1,9 +1,11 @@
-// Mesh files: assimp round trips in every supported format, TetGen tet meshes, and named errors.
+// Mesh files: round trips in every supported format, TetGen tet meshes, precision, polygons and named errors.
 #include "sinew/mesh/mesh_io.hpp"
 #include "test_util.hpp"
 
 #include <gtest/gtest.h>
 
+#include <cstdint>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -107,7 +109,29 @@ TEST(MeshFiles, ObjKeepsDoublesAndTheFileVertexOrder) {
   EXPECT_NEAR(m.vertices(0, 1) - m.vertices(0, 0), 1e-9, 1e-12);
 }
 
-// Polygons as OBJ and as PLY faces (the PLY through assimp), each with its outline in the z = 0 plane.
+// PLY is read here too (assimp rounded its doubles to float): a big-endian binary file keeps its
+// doubles exactly; a header that ends inside a comment line (on which assimp looped forever) is named.
+TEST(MeshFiles, PlyKeepsDoublesAndNamesATruncatedHeader) {
+  std::string ply =
+      "ply\nformat binary_big_endian 1.0\nelement vertex 3\nproperty double x\nproperty double y\n"
+      "property double z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n";
+  const double xyz[] = {1000.000000001, 2000, -3000, 1000.000000002, 2000.5, -3000, 1000.5, 2000, -3000.000000001};
+  for (double c : xyz) {
+    std::uint64_t bits;
+    std::memcpy(&bits, &c, sizeof c);
+    for (int k = 7; k >= 0; --k) ply += static_cast<char>((bits >> (8 * k)) & 0xff);
+  }
+  ply += std::string("\x03\0\0\0\0\0\0\0\x01\0\0\0\x02", 13);
+  const mesh::TriangleMesh m = mesh::load_triangle_mesh(write("km.ply", ply));
+  ASSERT_EQ(m.vertices.cols(), 3);
+  ASSERT_EQ(m.triangles.size(), 1u);
+  for (int i = 0; i < 9; ++i) EXPECT_EQ(m.vertices(i % 3, i / 3), xyz[i]);
+  const std::string truncated = write("truncated.ply", "ply\nformat ascii 1.0\ncomment");
+  EXPECT_NE(error_of([&] { mesh::load_triangle_mesh(truncated); }).find("the header has no end_header line"),
+            std::string::npos);
+}
+
+// Polygons as OBJ and as PLY faces, each with its outline in the z = 0 plane.
 class Polygons : public ::testing::TestWithParam<std::string> {};
 
 std::string write_polygon(const std::string& name, const std::vector<Vec3>& corners) {
@@ -175,17 +199,17 @@ TEST_P(Polygons, SelfCrossingPolygonsAreNamed) {
 INSTANTIATE_TEST_SUITE_P(Formats, Polygons, ::testing::Values(".obj", ".ply"),
                          [](const auto& test) { return test.param.substr(1); });
 
-// A face that uses one vertex twice is named in the assimp formats too (assimp's FindDegenerates
-// used to drop it without a word).
+// A face that uses one vertex twice is named in the formats read through assimp too (assimp's
+// FindDegenerates used to drop it without a word): here an STL facet with two corners at one point.
 TEST(MeshFiles, DegenerateFacesAreNamedInEveryFormat) {
-  const std::string ply = write("degenerate.ply",
-                                "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-                                "property float z\nelement face 2\nproperty list uchar int vertex_indices\n"
-                                "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 0 1 1\n");
+  const std::string stl = write("degenerate.stl",
+                                "solid s\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\n"
+                                "endloop\nendfacet\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
+                                "vertex 1 0 0\nendloop\nendfacet\nendsolid s\n");
   EXPECT_NE(
-      error_of([&] { mesh::load_triangle_mesh(ply); }).find("degenerate.ply': mesh 0 face 1 uses one vertex twice"),
+      error_of([&] { mesh::load_triangle_mesh(stl); }).find("degenerate.stl': mesh 0 face 1 uses one vertex twice"),
       std::string::npos)
-      << error_of([&] { mesh::load_triangle_mesh(ply); });
+      << error_of([&] { mesh::load_triangle_mesh(stl); });
 }
 
 TEST(MeshFiles, BadFilesAreNamed) {

@@ -9,8 +9,11 @@
 #include <algorithm>
 #include <charconv>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
 #include <memory>
 #include <optional>
@@ -181,29 +184,38 @@ std::string add_polygon(const std::vector<Vec3>& vertices, const std::vector<Ind
       }
     }
   // Ear clipping: cut off a convex corner whose triangle holds no other corner, even on its edges.
-  // A simple polygon always has one (Meisters' two-ears theorem), and cutting it leaves a simple polygon.
+  // A simple polygon always has one (Meisters' two-ears theorem), and cutting it leaves a simple
+  // polygon. Of the ears, the fattest (area over longest edge squared) goes first, so that a corner
+  // nearly on an edge is not left for a sliver; an ear must pass the area test above.
+  const auto fatness = [&](std::size_t a, std::size_t b, std::size_t c) {
+    const double longest_edge =
+        std::max({(p[b] - p[a]).squaredNorm(), (p[c] - p[b]).squaredNorm(), (p[a] - p[c]).squaredNorm()});
+    return orient(p[a], p[b], p[c]) / longest_edge;
+  };
   std::vector<std::size_t> ring(n);
   for (std::size_t i = 0; i < n; ++i) ring[i] = i;
-  std::size_t k = 0;
   while (ring.size() > 3) {
-    bool cut = false;
-    for (std::size_t tries = 0; tries < ring.size() && !cut; ++tries, k = (k + 1) % ring.size()) {
-      const std::size_t m = ring.size(), a = ring[(k + m - 1) % m], b = ring[k], c = ring[(k + 1) % m];
-      if (!(orient(p[a], p[b], p[c]) > 0)) continue;
+    const std::size_t m = ring.size();
+    double best = 1e-12;
+    std::size_t cut = m;
+    for (std::size_t k = 0; k < m; ++k) {
+      const std::size_t a = ring[(k + m - 1) % m], b = ring[k], c = ring[(k + 1) % m];
+      const double f = fatness(a, b, c);
+      if (!(f > best)) continue;
       const auto inside = [&](std::size_t o) {
         return o != a && o != b && o != c && orient(p[a], p[b], p[o]) >= 0 && orient(p[b], p[c], p[o]) >= 0 &&
                orient(p[c], p[a], p[o]) >= 0;
       };
       if (std::any_of(ring.begin(), ring.end(), inside)) continue;
-      triangles.push_back({polygon[a], polygon[b], polygon[c]});
-      ring.erase(ring.begin() + static_cast<std::ptrdiff_t>(k));
-      k %= ring.size();
-      cut = true;
+      best = f;
+      cut = k;
     }
-    // Only rounding in nearly degenerate corners gets here.
-    if (!cut) return "cannot be cut into triangles in its plane";
+    // Only corners nearly on an edge (relative to 1e-12) or rounding get here.
+    if (cut == m) return "cannot be cut into triangles with area";
+    triangles.push_back({polygon[ring[(cut + m - 1) % m]], polygon[ring[cut]], polygon[ring[(cut + 1) % m]]});
+    ring.erase(ring.begin() + static_cast<std::ptrdiff_t>(cut));
   }
-  if (!(orient(p[ring[0]], p[ring[1]], p[ring[2]]) > 0)) return "cannot be cut into triangles in its plane";
+  if (!(fatness(ring[0], ring[1], ring[2]) > 1e-12)) return "cannot be cut into triangles with area";
   triangles.push_back({polygon[ring[0]], polygon[ring[1]], polygon[ring[2]]});
   return "";
 }
@@ -321,8 +333,273 @@ TriangleMesh load_obj(const std::string& path) {
   return used_vertices(positions, std::move(triangles));
 }
 
-// Every other format through assimp, whose positions are ai_real (float in Debian's build: STL and
-// glTF store float anyway; PLY's doubles are rounded).
+// PLY is read here too: assimp 5.2 loops forever on a header that ends inside a comment line (the
+// fuzzer's find), and rounds double properties to float.
+enum class PlyType { kInt8, kUInt8, kInt16, kUInt16, kInt32, kUInt32, kFloat32, kFloat64 };
+
+std::optional<PlyType> ply_type(const std::string& name) {
+  static const std::map<std::string, PlyType> types{
+      {"char", PlyType::kInt8},      {"int8", PlyType::kInt8},       {"uchar", PlyType::kUInt8},
+      {"uint8", PlyType::kUInt8},    {"short", PlyType::kInt16},     {"int16", PlyType::kInt16},
+      {"ushort", PlyType::kUInt16},  {"uint16", PlyType::kUInt16},   {"int", PlyType::kInt32},
+      {"int32", PlyType::kInt32},    {"uint", PlyType::kUInt32},     {"uint32", PlyType::kUInt32},
+      {"float", PlyType::kFloat32},  {"float32", PlyType::kFloat32}, {"double", PlyType::kFloat64},
+      {"float64", PlyType::kFloat64}};
+  const auto found = types.find(name);
+  return found == types.end() ? std::nullopt : std::optional<PlyType>(found->second);
+}
+
+bool is_integer(PlyType t) { return t != PlyType::kFloat32 && t != PlyType::kFloat64; }
+
+struct PlyProperty {
+  std::string name;
+  PlyType type;
+  std::optional<PlyType> list_count;  // set for a list: the type of its length
+};
+
+struct PlyElement {
+  std::string name;
+  long long count;
+  std::vector<PlyProperty> properties;
+};
+
+// The body of a PLY file, value by value, in ASCII or binary of either byte order.
+class PlyBody {
+ public:
+  PlyBody(const Place& file, const std::string& bytes, std::size_t offset, std::size_t line, std::string format)
+      : m_file(file), m_bytes(bytes), m_at(offset), m_line(line), m_format(std::move(format)) {}
+
+  // The next value, as a double (every PLY type converts exactly); an integer type in ASCII must be
+  // written as an integer within its range.
+  template <typename... Item>
+  double next(PlyType type, const Item&... item) {
+    if (m_format == "ascii") {
+      const std::string token = next_token(item...);
+      const Place at{m_file.kind, m_file.path, m_token_line};
+      if (!is_integer(type)) {
+        const std::optional<double> value = parse_real(token);
+        if (!value) fail(at, ": ", item..., " '", token, "' is not a number");
+        return *value;
+      }
+      const long long value = integer(token, at, item...);
+      static const std::map<PlyType, std::pair<long long, long long>> ranges{
+          {PlyType::kInt8, {-128, 127}},
+          {PlyType::kUInt8, {0, 255}},
+          {PlyType::kInt16, {-32768, 32767}},
+          {PlyType::kUInt16, {0, 65535}},
+          {PlyType::kInt32, {-2147483648LL, 2147483647LL}},
+          {PlyType::kUInt32, {0, 4294967295LL}}};
+      const auto [low, high] = ranges.at(type);
+      if (value < low || value > high) fail(at, ": ", item..., " '", token, "' is out of its type's range");
+      return static_cast<double>(value);
+    }
+    static const std::map<PlyType, std::size_t> sizes{
+        {PlyType::kInt8, 1},  {PlyType::kUInt8, 1},  {PlyType::kInt16, 2},   {PlyType::kUInt16, 2},
+        {PlyType::kInt32, 4}, {PlyType::kUInt32, 4}, {PlyType::kFloat32, 4}, {PlyType::kFloat64, 8}};
+    const std::size_t size = sizes.at(type);
+    if (m_bytes.size() - m_at < size) fail(m_file, ": ", item..., " is past the end of the file");
+    unsigned char raw[8];
+    std::memcpy(raw, m_bytes.data() + m_at, size);
+    m_at += size;
+    const std::uint16_t probe = 1;
+    const bool host_little = *reinterpret_cast<const unsigned char*>(&probe) == 1;
+    if (host_little != (m_format == "binary_little_endian")) std::reverse(raw, raw + size);
+    switch (type) {
+      case PlyType::kInt8: return static_cast<double>(static_cast<std::int8_t>(raw[0]));
+      case PlyType::kUInt8: return raw[0];
+      case PlyType::kInt16: return decode<std::int16_t>(raw);
+      case PlyType::kUInt16: return decode<std::uint16_t>(raw);
+      case PlyType::kInt32: return decode<std::int32_t>(raw);
+      case PlyType::kUInt32: return decode<std::uint32_t>(raw);
+      case PlyType::kFloat32: return decode<float>(raw);
+      default: return decode<double>(raw);
+    }
+  }
+
+  // Nothing may follow the last element but blanks (ASCII); a binary body ends with it.
+  void expect_end() {
+    if (m_format == "ascii") {
+      skip_blanks();
+      if (m_at < m_bytes.size()) fail(Place{m_file.kind, m_file.path, m_line}, ": data after the last element");
+    } else if (m_at < m_bytes.size()) {
+      fail(m_file, ": ", m_bytes.size() - m_at, " bytes after the last element");
+    }
+  }
+
+  // The line of the last ASCII value read, 0 in binary.
+  std::size_t line() const { return m_format == "ascii" ? m_token_line : 0; }
+
+ private:
+  template <typename T>
+  static double decode(const unsigned char* raw) {
+    T value;
+    std::memcpy(&value, raw, sizeof(T));
+    return static_cast<double>(value);
+  }
+  void skip_blanks() {
+    while (m_at < m_bytes.size() && (is_space(m_bytes[m_at]) || m_bytes[m_at] == '\n')) {
+      if (m_bytes[m_at] == '\n') ++m_line;
+      ++m_at;
+    }
+  }
+  template <typename... Item>
+  std::string next_token(const Item&... item) {
+    skip_blanks();
+    if (m_at == m_bytes.size()) fail(m_file, ": ", item..., " is past the end of the file");
+    const std::size_t start = m_at;
+    while (m_at < m_bytes.size() && !is_space(m_bytes[m_at]) && m_bytes[m_at] != '\n') ++m_at;
+    m_token_line = m_line;
+    return m_bytes.substr(start, m_at - start);
+  }
+
+  const Place& m_file;
+  const std::string& m_bytes;
+  std::size_t m_at, m_line, m_token_line = 0;
+  std::string m_format;
+};
+
+TriangleMesh load_ply(const std::string& path) {
+  const Place file{"mesh file", path};
+  std::ifstream in(path, std::ios::binary);
+  if (!in) fail(file, ": cannot be opened");
+  const std::string bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  // The header: lines up to "end_header".
+  std::vector<PlyElement> elements;
+  std::string format;
+  std::size_t at = 0, line = 0;
+  for (bool ended = false; !ended;) {
+    if (at >= bytes.size()) fail(file, ": the header has no end_header line");
+    const std::size_t end = std::min(bytes.find('\n', at), bytes.size());
+    std::istringstream text(bytes.substr(at, end - at));
+    at = std::min(end + 1, bytes.size());
+    const Place here{file.kind, path, ++line};
+    std::vector<std::string> f;
+    for (std::string field; text >> field;) f.push_back(field);
+    if (line == 1) {
+      if (f.size() != 1 || f[0] != "ply") fail(here, ": not a PLY file (the first line is not 'ply')");
+    } else if (f.empty() || f[0] == "comment" || f[0] == "obj_info") {
+    } else if (f[0] == "format") {
+      if (f.size() != 3 || (f[1] != "ascii" && f[1] != "binary_little_endian" && f[1] != "binary_big_endian") ||
+          f[2] != "1.0")
+        fail(here, ": unknown format (expected ascii, binary_little_endian or binary_big_endian 1.0)");
+      format = f[1];
+    } else if (f[0] == "element") {
+      if (f.size() != 3) fail(here, ": an element line is 'element <name> <count>'");
+      const long long count = integer(f[2], here, "element ", f[1], " count");
+      if (count < 0) fail(here, ": element ", f[1], " count ", count, " is negative");
+      elements.push_back({f[1], count, {}});
+    } else if (f[0] == "property") {
+      if (elements.empty()) fail(here, ": a property before any element");
+      const bool list = f.size() == 5 && f[1] == "list";
+      if (f.size() != 3 && !list) fail(here, ": a property line is 'property <type> <name>' or 'property list ...'");
+      const std::optional<PlyType> type = ply_type(f[f.size() - 2]);
+      const std::optional<PlyType> count = list ? ply_type(f[2]) : std::nullopt;
+      if (!type || (list && !count)) fail(here, ": unknown property type");
+      if (list && !is_integer(*count)) fail(here, ": a list's length must have an integer type");
+      elements.back().properties.push_back({f.back(), *type, count});
+    } else if (f[0] == "end_header") {
+      ended = true;
+    } else {
+      fail(here, ": unknown header line '", f[0], "'");
+    }
+  }
+  if (format.empty()) fail(file, ": the header has no format line");
+  PlyBody body(file, bytes, at, line + 1, format);
+  std::vector<Vec3> vertices;
+  struct Face {
+    std::size_t line;
+    long long number;
+    std::vector<Index> vertices;
+  };
+  std::vector<Face> faces;
+  for (const PlyElement& element : elements) {
+    const bool is_vertex = element.name == "vertex", is_face = element.name == "face";
+    std::array<int, 3> xyz{-1, -1, -1};
+    int corners = -1;
+    for (std::size_t p = 0; p < element.properties.size(); ++p) {
+      const PlyProperty& property = element.properties[p];
+      for (int k = 0; k < 3; ++k)
+        if (is_vertex && property.name == std::string(1, "xyz"[k]) && !property.list_count)
+          xyz[k] = static_cast<int>(p);
+      if (is_face && (property.name == "vertex_indices" || property.name == "vertex_index") && property.list_count) {
+        if (!is_integer(property.type)) fail(file, ": face ", property.name, " must have an integer type");
+        corners = static_cast<int>(p);
+      }
+    }
+    if (is_vertex && (xyz[0] < 0 || xyz[1] < 0 || xyz[2] < 0)) fail(file, ": vertex has no x, y and z properties");
+    if (is_face && corners < 0) fail(file, ": face has no vertex_indices list");
+    for (long long row = 0; row < element.count; ++row) {
+      Vec3 x = Vec3::Zero();
+      Face face{0, row, {}};
+      for (std::size_t p = 0; p < element.properties.size(); ++p) {
+        const PlyProperty& property = element.properties[p];
+        if (!property.list_count) {
+          const double value = body.next(property.type, element.name, " ", row, " ", property.name);
+          for (int k = 0; k < 3; ++k)
+            if (xyz[k] == static_cast<int>(p)) {
+              if (!std::isfinite(value))
+                fail(Place{file.kind, path, body.line()}, ": vertex ", row, " ", property.name, " is not finite");
+              x[k] = value;
+            }
+          continue;
+        }
+        const double length = body.next(*property.list_count, element.name, " ", row, " ", property.name, " length");
+        if (length < 0)
+          fail(Place{file.kind, path, body.line()}, ": ", element.name, " ", row, " has a negative list length");
+        face.line = body.line();
+        for (double i = 0; i < length; ++i) {
+          const double value = body.next(property.type, element.name, " ", row, " ", property.name);
+          if (static_cast<int>(p) == corners) face.vertices.push_back(static_cast<Index>(value));
+        }
+      }
+      if (is_vertex) vertices.push_back(x);
+      if (is_face) faces.push_back(std::move(face));
+    }
+  }
+  body.expect_end();
+  std::vector<std::array<Index, 3>> triangles;
+  for (const Face& face : faces) {
+    const Place where{file.kind, path, face.line};
+    if (face.vertices.size() < 3)
+      fail(where, ": face ", face.number, " has ", face.vertices.size(), " corners, expected 3 or more");
+    for (Index v : face.vertices)
+      if (v < 0 || v >= static_cast<Index>(vertices.size()))
+        fail(where, ": face ", face.number, " refers to vertex ", v, ", which does not exist (", vertices.size(),
+             " vertices)");
+    const std::string problem = add_polygon(vertices, face.vertices, triangles);
+    if (!problem.empty()) fail(where, ": face ", face.number, " ", problem);
+  }
+  if (triangles.empty()) fail(file, ": contains no triangles");
+  return used_vertices(vertices, std::move(triangles));
+}
+
+// The binary glTF container (a 12-byte header, then chunks of an 8-byte header and 4-byte aligned
+// data) must add up to the file's size before assimp reads it: assimp 5.2 allocates what a length field
+// says, gigabytes for a 100-byte file.
+void check_glb(const Place& file) {
+  std::ifstream in(file.path, std::ios::binary);
+  const std::string bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  const auto word = [&](std::size_t at) {
+    std::uint32_t w = 0;
+    for (std::size_t k = 0; k < 4; ++k)
+      w |= static_cast<std::uint32_t>(static_cast<unsigned char>(bytes[at + k])) << (8 * k);
+    return w;
+  };
+  if (bytes.size() < 12 || bytes.compare(0, 4, "glTF") != 0) fail(file, ": not a binary glTF file (no 'glTF' header)");
+  if (word(4) != 2) fail(file, ": glTF version ", word(4), ", expected 2");
+  if (word(8) != bytes.size()) fail(file, ": the header says ", word(8), " bytes, the file has ", bytes.size());
+  for (std::size_t at = 12; at < bytes.size();) {
+    if (bytes.size() - at < 8) fail(file, ": a chunk header at byte ", at, " runs past the end");
+    const std::uint32_t length = word(at);
+    if (length % 4 != 0 || length > bytes.size() - at - 8)
+      fail(file, ": the chunk at byte ", at, " says ", length, " bytes (", bytes.size() - at - 8,
+           " remain; chunks are 4-byte aligned)");
+    at += 8 + length;
+  }
+}
+
+// Every other format through assimp, whose positions are ai_real (float in Debian's build; binary STL
+// and glTF store float anyway, ASCII STL's digits beyond float are lost).
 TriangleMesh load_with_assimp(const std::string& path) {
   const Place file{"mesh file", path};
   Assimp::Importer importer;
@@ -386,7 +663,10 @@ TriangleMesh load_triangle_mesh(const std::string& path) {
   if (!std::filesystem::exists(path)) fail("mesh file '", path, "': no such file");
   std::string extension = std::filesystem::path(path).extension().string();
   for (char& c : extension) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return extension == ".obj" ? load_obj(path) : load_with_assimp(path);
+  if (extension == ".obj") return load_obj(path);
+  if (extension == ".ply") return load_ply(path);
+  if (extension == ".glb") check_glb(Place{"mesh file", path});
+  return load_with_assimp(path);
 }
 
 void save_triangle_meshes(const std::string& path, const std::vector<TriangleMesh>& meshes,
