@@ -32,6 +32,7 @@ void Newmark::allocate(const StepModel& s) {
   m_arm_maps.assign(static_cast<std::size_t>(r), Mat3::Identity());
   m_angular_maps = m_arm_maps;
   m_turn.setZero(3, r);
+  for (Vectors3* a : {&m_mix_x, &m_mix_g, &m_mix_next}) a->setZero(3, r);
   m_w_lin.setZero(3, r);
   m_u.setZero(3, n);
   m_bound_offset.setZero(3, n);
@@ -147,11 +148,11 @@ void Newmark::implicit_half_velocity(const StepModel& s, double dt, StepStats& s
   m_body_I_n = m_body_I;
   for (const auto& f : s.forces) f->update_position_state(s.particles.x);
   predict_angular_velocities(dt);
-  set_step_maps(s, dt, true, ChordForm::derivative);
+  set_step_maps(s, dt, true, ChordForm::arm);
   const SolveCoefficients k{h, h, m_implicit_elasticity ? h : 0.0};
   m_system.set(s, k, m_body_I);
   compute_forces(s, s.particles.x, true);
-  add_geometric_stiffness(s, k, dt, ChordForm::derivative);
+  add_geometric_stiffness(s, k, dt, ChordForm::arm);
   build_rhs(s, h, m_v_n, m_body_v_n, m_body_L_n);
   add_bound_offset_impulse();
   bool trial = false;
@@ -173,9 +174,11 @@ void Newmark::implicit_half_velocity(const StepModel& s, double dt, StepStats& s
 
   // Newton's iteration over the frames' turns: relinearise the points' chords at the last answer and
   // solve again from it, until the chords the solve used are the chords of its answer.
-  auto pass = [&](ChordForm form) {
+  // One pass: the chords linearised at the angular velocities `w` (the last answer's, or an
+  // accelerated guess), solved from the last answer.
+  auto pass = [&](ChordForm form, const Vectors3& w) {
     t = Clock::now();
-    m_w_lin = s.bodies.w;
+    m_w_lin = w;
     set_step_maps(s, dt, true, form);
     m_system.set(s, k, m_body_I);
     compute_forces(s, s.particles.x, true);
@@ -193,31 +196,63 @@ void Newmark::implicit_half_velocity(const StepModel& s, double dt, StepStats& s
   };
   const double tolerance = s.settings.cg_tolerance;
   const int passes = s.settings.rotation_iterations;
-  bool turned = chord_error(s, dt) <= tolerance;
-  for (int i = 1; !turned && i < passes; ++i) turned = pass(ChordForm::derivative) <= tolerance;
-  m_form = ChordForm::derivative;
-  if (turned && s.hard.rigid_count() > 0) {
-    // From Newton's answer, the fixed point of the arms J(theta) r (the work-conserving form, see
-    // above); kept if it converges, else Newton's answer stands.
-    m_saved_half.particles = m_y.particles;
-    m_saved_half.rigid = m_y.rigid;
-    // It stalls near the solves' own accuracy (each answer is good to the tolerance only), where it
-    // holds; well above it, it does not contract (a chain whipping round) and Newton's answer stands.
-    double error = kInfinity;
-    bool held = false;
-    for (int i = 0; i < passes && !held; ++i) {
-      const double e = pass(ChordForm::arm);
-      held = e <= tolerance;
-      if (!(e < error)) break;
-      error = e;
+  // First the fixed point of the arms J(theta) r, the work-conserving form (see above): each pass
+  // contracts the turn's error by about |theta| / 2, so with the predicted turn it usually holds at
+  // once. It stalls near the solves' own accuracy (each answer is good to the tolerance only), where
+  // it holds; where it stops contracting well above it (a chain whipping round, where the joints'
+  // stiffness multiplies the arms' change), Newton's iteration on the derivative form takes over.
+  m_form = ChordForm::arm;
+  m_saved_half.particles = m_y.particles;  // the first answer, where Newton starts if this fails
+  m_saved_half.rigid = m_y.rigid;
+  double error = chord_error(s, dt);
+  bool turned = error <= tolerance;
+  int pass_count = 0;
+  // The fixed point w = g(w) of "linearise at w, solve, read the answer's w" is found with one step
+  // of Anderson's mixing (a secant on the residual r = g(w) - w): w' = g_k - gamma (g_k - g_{k-1}),
+  // gamma = r_k . (r_k - r_{k-1}) / |r_k - r_{k-1}|^2, where plain iteration contracts by only
+  // |theta| / 2 per pass.
+  m_mix_x = m_w_lin;  // the linearisation of the first solve and its answer
+  m_mix_g = s.bodies.w;
+  m_mix_next = s.bodies.w;
+  for (; !turned && pass_count < passes; ++pass_count) {
+    const double e = pass(ChordForm::arm, m_mix_next);
+    mix_turns(s.bodies.w);
+    turned = e <= tolerance;
+    if (!(e < error)) {
+      turned = std::min(e, error) <= 10.0 * tolerance;
+      break;
     }
-    held = held || error <= 10.0 * tolerance;
-    if (held) {
-      m_form = ChordForm::arm;
-    } else {
-      m_y.particles = m_saved_half.particles;
-      m_y.rigid = m_saved_half.rigid;
-      keep_half_velocity(s);
+    error = e;
+  }
+  if (!turned) {
+    // Newton's answer, then the arm form again from there (close to its fixed point, it contracts
+    // where it did not from the prediction); Newton's answer stands if it still does not.
+    m_form = ChordForm::derivative;
+    m_y.particles = m_saved_half.particles;
+    m_y.rigid = m_saved_half.rigid;
+    keep_half_velocity(s);
+    for (int i = 0; !turned && i < passes; ++i) turned = pass(ChordForm::derivative, s.bodies.w) <= tolerance;
+    if (turned) {
+      m_saved_half.particles = m_y.particles;
+      m_saved_half.rigid = m_y.rigid;
+      error = kInfinity;
+      bool held = false;
+      for (int i = 0; i < passes && !held; ++i) {
+        const double e = pass(ChordForm::arm, s.bodies.w);
+        held = e <= tolerance;
+        if (!(e < error)) {
+          held = std::min(e, error) <= 10.0 * tolerance;
+          break;
+        }
+        error = e;
+      }
+      if (held) {
+        m_form = ChordForm::arm;
+      } else {
+        m_y.particles = m_saved_half.particles;
+        m_y.rigid = m_saved_half.rigid;
+        keep_half_velocity(s);
+      }
     }
   }
   stats.cg_converged = stats.cg_converged && turned;
@@ -266,6 +301,26 @@ void Newmark::implicit_half_velocity(const StepModel& s, double dt, StepStats& s
 Vec3 Newmark::turn_of(const Vec3& w, double dt, double limit) {
   const double angle = dt * w.norm();
   return angle > limit ? Vec3((limit / angle) * dt * w) : Vec3(dt * w);
+}
+
+// Anderson's mixing of the last two linearisations and answers (see implicit_half_velocity); the
+// next linearisation in m_mix_next. Plain iteration (the answer itself) where the residuals did not
+// change.
+void Newmark::mix_turns(const Vectors3& answer) {
+  double numerator = 0.0, denominator = 0.0;
+  for (Index b = 0; b < m_unknowns.r; ++b) {
+    const Vec3 r = answer.col(b) - m_w_lin.col(b);
+    const Vec3 dr = r - (m_mix_g.col(b) - m_mix_x.col(b));
+    numerator += r.dot(dr);
+    denominator += dr.squaredNorm();
+  }
+  double gamma = denominator > 0.0 ? numerator / denominator : 0.0;
+  if (!std::isfinite(gamma)) gamma = 0.0;
+  for (Index b = 0; b < m_unknowns.r; ++b) {
+    m_mix_next.col(b) = answer.col(b) - gamma * (answer.col(b) - m_mix_g.col(b));
+    m_mix_x.col(b) = m_w_lin.col(b);
+    m_mix_g.col(b) = answer.col(b);
+  }
 }
 
 // Step 1's first linearisation: at the angular velocities the step-1 guess predicts, w^n + (dt /
@@ -364,10 +419,10 @@ double Newmark::chord_error(const StepModel& s, double dt) const {
 // compressed point's negative curvature would make the system indefinite for CG) and added to
 // its step-1 inertia, with H w0 on the right-hand side, so that the solve is Newton's step.
 void Newmark::add_geometric_stiffness(const StepModel& s, const SolveCoefficients& k, double dt, ChordForm form) {
-  // The arm form's arm J(theta) r turns half as fast with w as the end offset does.
-  const double curvature = form == ChordForm::arm ? 0.5 * dt : dt;
-  if (s.hard.rigid_count() == 0) return;
+  // Newton's iteration only: the arm form is a fixed-point iteration, which the term slows down (a
+  // stiff pendulum at 1/60 s then stalls and falls back to Newton's answer every step).
   for (Mat3& g : m_geometric) g.setZero();
+  if (form == ChordForm::arm || s.hard.rigid_count() == 0) return;
   m_lin.particles = s.particles.v;
   m_lin.rigid.topRows<3>() = s.bodies.v;
   m_lin.rigid.bottomRows<3>() = m_w_lin;
@@ -378,8 +433,8 @@ void Newmark::add_geometric_stiffness(const StepModel& s, const SolveCoefficient
     const Index i = s.hard.rigid_particle(j);
     const Vec3 lambda = -(Vec3(m_bound_force.col(i)) + Vec3(m_u.col(i)));
     const Vec3 a = s.hard.rigid_offset_world(j);
-    m_geometric[b] += (k.h * curvature) *
-                      (0.5 * (lambda * a.transpose() + a * lambda.transpose()) - lambda.dot(a) * Mat3::Identity());
+    m_geometric[b] +=
+        (k.h * dt) * (0.5 * (lambda * a.transpose() + a * lambda.transpose()) - lambda.dot(a) * Mat3::Identity());
   }
   for (Index b = 0; b < m_unknowns.r; ++b) {
     if (!m_unknowns.dynamic_body[b] || m_geometric[b].isZero(0.0)) continue;

@@ -50,6 +50,7 @@ class Newmark {
   void set_step_maps(const StepModel& s, double dt, bool inertias, ChordForm form);
   double chord_error(const StepModel& s, double dt) const;
   void add_bound_offset_impulse();
+  void mix_turns(const Vectors3& answer);
   void add_geometric_stiffness(const StepModel& s, const SolveCoefficients& k, double dt, ChordForm form);
   void restore_positions(const StepModel& s);  // back to x^n, exactly
 
@@ -108,6 +109,7 @@ class Newmark {
   VectorXd m_body_gyration;                  // radius of gyration of each dynamic body
   std::vector<Mat3> m_geometric;             // per body: the chords' geometric stiffness in step 1 (w-w block)
   GeneralizedVector m_lin;                   // the twists and velocities step 1 is linearised at
+  Vectors3 m_mix_x, m_mix_g, m_mix_next;     // Anderson's mixing of the turns (mix_turns)
   GeneralizedVector m_saved_half;            // Newton's answer, while the arm form is tried from it
   ChordForm m_form = ChordForm::derivative;  // the form of this step's answer
   Vectors3 m_u;                              // scratch: velocities with the bound rows' chords
