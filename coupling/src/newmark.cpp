@@ -278,25 +278,41 @@ void Newmark::implicit_half_velocity(const StepModel& s, double dt, StepStats& s
 // see the points' positions x^n + h u (step 1) and x^{n+1/2} (step 4); a spring of stiffness k
 // would kick every such miss back with k |theta|^2 |r| / 2, which for a light body on a stiff spring
 // is no longer small against anything (a 0.1 kg rod hung on 1e9 N/m gained 1e244 times its energy
-// in 600 steps at 1/60 s). So the solves use the chords, linearised at an angular velocity w0 (a
-// Newton iteration, step 1 repeating it at each answer until the chords it used are its answer's):
+// in 600 steps at 1/60 s). So the solves see the chords, in one of two forms.
+//
+// The arm form. (R(theta) - I) r = theta x (J(theta) r) exactly (J: rotation_left_jacobian), so with
+// theta = dt w the chord is u = v + w x r~ for the arm r~ = J(theta) r: the solve's points sit at r~
+// (W = [I  -r~*], W^T f = (f, r~ x f), hard bindings' set_step_arms). Then W t = u(t) at the answer,
+// and the work the forces do in the step's velocity update is the work they do along the chords:
+// for a binding spring, whose force at the chord's midpoint does exactly minus its energy change
+// over the chord, the kinetic energy changes by that and no more (a discrete gradient), and a
+// force pair on two points keeps the angular momentum. r~ = r + theta x r / 2 + O(theta^2) is, to
+// first order, the arm at the half-step orientation. r~ depends on the answer's w, so step 1 finds
+// the fixed point: linearise at w0, solve, read w, again (with Anderson's mixing, mix_turns). It
+// contracts by about |theta| / 2 times the share of the joints' stiffness in a body's motion: at
+// once for a cloth on a turning body or a pendulum, not for a chain whipping round.
+//
+// The derivative form, for Newton's iteration where the fixed point stalls:
 //
 //   u(v, w) ~ v + (A w) x r' + o,   r' = R(theta0) r,   A = J(theta0) dtheta/dw / dt,
 //   o = (R(theta0) - I) r / dt - (A w0) x r',
 //
-// from d/dtheta (R(theta) r) = -(R(theta) r)* J(theta) (J: rotation_left_jacobian). The points on
-// frames thus sit at their end-of-step offsets r' and move with the angular velocity A w (W = [I
-// -r'* A], hard bindings' set_step_arms), plus an offset o that the step moves to the right-hand side
-// (ImplicitSystem::apply_bound_offset). W^T maps a force f on a point to (f, A^T (r' x f)), the
-// derivative of the point's chord: step 1 is then the stationary point of
+// from d/dtheta (R(theta) r) = -(R(theta) r)* J(theta). The points sit at their end-of-step offsets
+// r' and move with the angular velocity A w (W = [I  -r'* A]), plus an offset o that the step moves
+// to the right-hand side (ImplicitSystem::apply_bound_offset). W^T maps a force f on a point to (f,
+// A^T (r' x f)), the derivative of the point's chord: step 1 is then the stationary point of
 //   1/2 |t - t^n|_M^2 + E(x^n + h u(t)) - h F_ext . t
-// over the twists and velocities t (E: the implicit forces' energy), and Newton's iteration, with the
-// same symmetric operator CG needs, converges to it: fast, as the only term it drops, the curvature
-// of the chords times the forces on the points, is small against the springs' stiffness that makes
-// the problem hard. Where StepSettings::max_rotation_per_step cuts theta to the limit along w,
-// dtheta/dw keeps only the change of direction. Step 1 takes each dynamic body's inertia at its
-// half-step orientation, R(theta/2) I R(theta/2)^T (StepSettings::gyroscopic_correction), lagged one
-// iteration.
+// over the twists and velocities t (E: the implicit forces' energy), which Newton's iteration finds
+// with the symmetric operator CG needs once the chords' geometric stiffness is in it
+// (add_geometric_stiffness). But W t differs from u(t) by O(theta) (the arm is the end-of-step one),
+// so this form dissipates (a stiff pendulum at 1/60 s lost 80% of its energy in a second) and does
+// not keep angular momentum; step 1 therefore tries the arm form again from Newton's answer, and
+// only where that still stalls does the step keep Newton's answer (and step 4 the same form).
+//
+// Where StepSettings::max_rotation_per_step cuts theta to the limit along w, the arm is scaled by
+// |theta| / (dt |w|) and dtheta/dw keeps only the change of direction. Step 1 takes each dynamic
+// body's inertia at its half-step orientation, R(theta/2) I R(theta/2)^T (StepSettings::
+// gyroscopic_correction), lagged one iteration.
 
 Vec3 Newmark::turn_of(const Vec3& w, double dt, double limit) {
   const double angle = dt * w.norm();

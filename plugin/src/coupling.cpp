@@ -25,6 +25,10 @@ struct TickCallbackAccess : btDynamicsWorld {
   }
 };
 
+// btTransformUtil's ANGULAR_MOTION_THRESHOLD, a little inside it so that Bullet's own limit never cuts
+// what the step hands over by a rounding.
+constexpr double kBulletMaxTurn = 0.25 * 3.14159265358979323846 * (1.0 - 1e-9);
+
 // Which coupling serves which world: the callback receives only the world.
 std::mutex g_registry_mutex;
 std::vector<std::pair<btDynamicsWorld*, Coupling*>> g_registry;
@@ -118,6 +122,11 @@ Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m
   if (settings.use_world_gravity) system.gravity = to_eigen(world->getGravity());
   m_use_world_gravity = settings.use_world_gravity;
   m_system = System(system);
+  // Bullet turns a body by at most pi/4 per step whatever its angular velocity (btTransformUtil::
+  // integrateTransform's ANGULAR_MOTION_THRESHOLD); the step turns the rigid-body particles and the
+  // points on them no further, so that Bullet then moves each body along the step's update.
+  m_system.step_settings().max_rotation_per_step =
+      std::min(m_system.step_settings().max_rotation_per_step, kBulletMaxTurn);
   {
     std::lock_guard<std::mutex> lock(g_registry_mutex);
     for (const auto& entry : g_registry)
