@@ -683,5 +683,53 @@ TEST_P(SpinningHub, ClothFollowsWhateverTurnBulletMakes) {
 
 INSTANTIATE_TEST_SUITE_P(RadPerSecond, SpinningHub, ::testing::Values(100.0, 700.0, 800.0, 1e4));
 
+// The issue's chain through the plugin: 20 capsules of 0.1 kg joined only by binding springs between
+// points on neighbouring bodies, the first hung from a static body, released horizontal, one 1/60 s
+// tick per frame; the joints should hold within 1 mm and the chain's visible energy (Bullet's kinetic
+// plus gravity) never rise above its start. Not yet: the same chain holds in the core alone
+// (test_point_joints: 20 rods, 1e3 to 1e12 N/m, joints within 1e-6 m), but through the coupling
+// it gains energy within two seconds at 1/60 s and at 1/240 s ticks alike (joints open to 5-20 cm,
+// where they used to reach 1e43 m), with Bullet's gyroscopic flags on or off: something in the
+// exchange of states with Bullet does not yet move the bodies as the step did. Disabled, and named
+// in tests/README, until it holds (issue 19).
+class CapsuleChain : public ::testing::TestWithParam<double> {};
+
+TEST_P(CapsuleChain, DISABLED_HoldsAtOneTickPerFrame) {
+  const double k = GetParam();
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  const double length = 0.1, radius = 0.01;
+  btCollisionShape* capsule =
+      bw.keep(std::make_unique<btCapsuleShapeX>(btScalar(radius), btScalar(length - 2 * radius)));
+  btRigidBody* support = add_box(bw, btVector3(0.02, 0.02, 0.02), 0.0, scenes::at(btVector3(-0.02, 0, 0)));
+  const int links = 20, group = 2;
+  std::vector<btRigidBody*> rods;
+  for (int i = 0; i < links; ++i) {
+    btRigidBody* rod = bw.add_body(capsule, 0.1, scenes::at(btVector3(btScalar((i + 0.5) * length), 0, 0)),
+                                   btVector3(0, 0, 0), group, btBroadphaseProxy::AllFilter ^ group);
+    rod->setActivationState(DISABLE_DEACTIVATION);
+    rods.push_back(rod);
+  }
+  bullet::CouplingSettings settings;
+  settings.collisions = false;
+  bullet::Coupling coupling(&bw.world(), settings);
+  System& s = coupling.system();
+  coupling.attach(coupling.add_body_point(support, Vec3(0.02, 0, 0)), rods[0], Vec3(-0.5 * length, 0, 0), k);
+  for (int i = 1; i < links; ++i)
+    coupling.attach(coupling.add_body_point(rods[i - 1], Vec3(0.5 * length, 0, 0)), rods[i], Vec3(-0.5 * length, 0, 0),
+                    k);
+  const double start = bw.rigid_energy();
+  double gain = -kInfinity, gap = 0.0;
+  for (int frame = 0; frame < 120; ++frame) {
+    bw.world().stepSimulation(btScalar(1.0 / 60), 1, btScalar(1.0 / 60));
+    gain = std::max(gain, bw.rigid_energy() - start);
+    gap = std::max(gap, s.binding_springs().max_stretch(s.particles().x));
+  }
+  // The chain's m g L is 20 x 0.1 x 9.81 x 1 m ~ 20 J; a trace of it is allowed.
+  EXPECT_LT(gain, 2e-3) << "k = " << k;
+  EXPECT_LT(gap, 1e-3) << "k = " << k;
+}
+
+INSTANTIATE_TEST_SUITE_P(Stiffness, CapsuleChain, ::testing::Values(1e6, 1e9));
+
 }  // namespace
 }  // namespace sinew
