@@ -1,5 +1,6 @@
 // The Bullet plugin's exchange (Sifakis et al. 2007, section 5): copy state in, momentum out.
 #include "bullet_scenes.hpp"
+#include "sinew/builders.hpp"
 #include "sinew/bullet/collisions.hpp"
 #include "sinew/bullet/convert.hpp"
 #include "sinew/bullet/coupling.hpp"
@@ -471,6 +472,99 @@ TEST(BulletCoupling, ARigidBodyAddedToTheSystemDirectlyIsSinewsOwn) {
   EXPECT_NEAR(s.rigid_bodies().v(1, own_index), -9.81 * t, 1e-9);
   EXPECT_EQ(s.rigid_bodies().x.col(2), bullet::to_eigen(second->getCenterOfMassPosition()));
   EXPECT_EQ(s.rigid_bodies().x.col(0), bullet::to_eigen(first->getCenterOfMassPosition()));
+}
+
+// What the application reads between stepSimulation calls is the end-of-tick state. Bodies resting on
+// what holds them read the velocity they move with: a sphere on the ground and a box on a 20 degree
+// slope whose friction (0.8 > tan 20) holds it. Bullet's contacts stop the approach at the velocity a
+// body moves with over the tick, the step's half-step velocity; the step's second half then added half
+// a tick of gravity, and they read g dt / 2 = 0.02 m/s of sinking (the box, of sliding too) while
+// their positions held to round-off. Here the reading and the motion over the last tick agree.
+TEST(BulletCoupling, ARestingBodyReadsTheVelocityItMovesWith) {
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  bw.add_body(bw.keep(std::make_unique<btStaticPlaneShape>(btVector3(0, 1, 0), 0)), 0.0,
+              scenes::at(btVector3(0, 0, 0)));
+  const btQuaternion tilt(btVector3(0, 0, 1), btScalar(20 * SIMD_PI / 180));
+  btRigidBody* slope = add_box(bw, btVector3(1, 0.1, 1), 0.0, scenes::at(btVector3(3, 1, 0), tilt));
+  slope->setFriction(0.8);
+  btRigidBody* sphere =
+      bw.add_body(bw.keep(std::make_unique<btSphereShape>(0.3)), 1.0, scenes::at(btVector3(0, 0.3, 0)));
+  sphere->setActivationState(DISABLE_DEACTIVATION);
+  const btVector3 on_slope = scenes::at(btVector3(3, 1, 0), tilt) * btVector3(0, 0.2, 0);
+  btRigidBody* box = add_box(bw, btVector3(0.1, 0.1, 0.1), 1.0, scenes::at(on_slope, tilt));
+  box->setFriction(0.8);
+  bullet::Coupling coupling(&bw.world());
+  coupling.rigid_particle(sphere);
+  coupling.rigid_particle(box);
+  const double dt = 1.0 / 240;
+  for (int tick = 0; tick < 240; ++tick) bw.world().stepSimulation(btScalar(dt), 1, btScalar(dt));
+  for (btRigidBody* body : {sphere, box}) {
+    const std::string name = body == sphere ? "sphere" : "box";
+    const Vec3 x0 = bullet::to_eigen(body->getCenterOfMassPosition());
+    bw.world().stepSimulation(btScalar(dt), 1, btScalar(dt));
+    const Vec3 moved = (bullet::to_eigen(body->getCenterOfMassPosition()) - x0) / dt;
+    const Vec3 v = bullet::to_eigen(body->getLinearVelocity());
+    // To what Bullet's iterative contact and friction solve leaves (about 1e-5 m/s on the box).
+    EXPECT_LT(moved.norm(), 1e-4) << name << " rests";
+    EXPECT_LT((v - moved).norm(), 1e-4) << name << " reads v = " << v.transpose();
+    EXPECT_LT(bullet::to_eigen(body->getAngularVelocity()).norm(), 1e-3) << name;
+  }
+}
+
+// The README's hello scene (demos/hello.cpp): a cloth tied at its centre to the top of a 1 kg sphere by
+// a 1e4 N/m binding spring, at rest on the ground after 3 s. The collision thickness holds the tied node
+// 1 cm above the spring's end on the sphere, so the spring carries k * 1 cm ~ 100 N. Between ticks the
+// node reads the velocity it moves with and the spring reads that force; the sphere reads no sinking;
+// the spring's end on the sphere sits on the sphere's final frame, moving with its final twist. Before,
+// the node read |v| = 13 m/s while it moved at 0.15 m/s (step 4 pulled it into the sphere, and only the
+// next step's projection took that out), the spring read 2 N, and the sphere read g dt / 2 of sinking.
+TEST(BulletCoupling, HelloSceneReadsTheStateItIsIn) {
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  bw.add_body(bw.keep(std::make_unique<btStaticPlaneShape>(btVector3(0, 1, 0), 0)), 0.0,
+              scenes::at(btVector3(0, 0, 0)));
+  btSphereShape ball(0.3);
+  btVector3 inertia;
+  ball.calculateLocalInertia(1, inertia);
+  btRigidBody* sphere = bw.add_body(&ball, 1.0, scenes::at(btVector3(0, 2, 0)), inertia);
+  bullet::Coupling coupling(&bw.world());
+  System& s = coupling.system();
+  ClothGridSettings grid;
+  grid.nx = grid.ny = 15;
+  grid.width = grid.height = 1.2;
+  grid.mass = 0.2;
+  grid.origin = {-0.6, 2.31, -0.6};
+  grid.down = {0, 0, 1};
+  const ClothGrid cloth = add_cloth_grid(s, grid);
+  const double k = 1e4;
+  const Vec3 local(0, 0.3, 0);
+  const Index spring = coupling.attach(cloth.node(7, 7), sphere, local, k);
+  const Index node = s.binding_springs().a(spring), end = s.binding_springs().b(spring);
+  for (int frame = 0; frame < 180; ++frame) bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+  const double dt = 1.0 / 240;
+  double worst_node = 0.0, worst_force = 0.0, worst_sinking = 0.0, worst_end = 0.0;
+  for (int tick = 0; tick < 8; ++tick) {
+    const Vec3 x0 = s.particles().x.col(node);
+    bw.world().stepSimulation(btScalar(dt), 1, btScalar(dt));
+    const Vec3 moved = (s.particles().x.col(node) - x0) / dt;
+    worst_node = std::max(worst_node, (Vec3(s.particles().v.col(node)) - moved).norm());
+
+    const Vec3 stretch = s.particles().x.col(node) - s.particles().x.col(end);
+    const Vec3 f = s.binding_spring_force(spring);
+    worst_force = std::max(worst_force, (f + k * stretch).norm() / (k * stretch.norm()));
+    worst_sinking = std::max(worst_sinking, std::abs(double(sphere->getLinearVelocity().y())));
+    const btTransform& frame = sphere->getCenterOfMassTransform();
+    const Vec3 r = bullet::to_eigen(frame.getBasis() * bullet::to_bullet(local));
+    const Vec3 v_end =
+        bullet::to_eigen(sphere->getLinearVelocity()) + bullet::to_eigen(sphere->getAngularVelocity()).cross(r);
+    worst_end = std::max({worst_end, (Vec3(s.particles().x.col(end)) - bullet::to_eigen(frame.getOrigin()) - r).norm(),
+                          (Vec3(s.particles().v.col(end)) - v_end).norm()});
+    EXPECT_GT(k * stretch.norm(), 50.0) << "the thickness holds the node off the spring's end";
+  }
+  EXPECT_LT(worst_node, 0.01) << "m/s between the node's reading and its motion";
+  EXPECT_LT(worst_force, 0.02) << "of k times the stretch";
+  EXPECT_LT(worst_sinking, 1e-9) << "m/s";
+  EXPECT_LT(worst_end, 1e-12);
+  EXPECT_NEAR(sphere->getCenterOfMassPosition().y(), 0.3, 1e-9);
 }
 }  // namespace
 }  // namespace sinew

@@ -157,13 +157,14 @@ void Coupling::pre_tick(btDynamicsWorld* world, btScalar dt) {
 void Coupling::post_tick(btDynamicsWorld* world, btScalar dt) {
   Coupling* coupling = find_coupling(world);
   if (!coupling) return;
-  coupling->follow_bodies();
+  coupling->follow_bodies(static_cast<double>(dt));
   if (coupling->m_app_post_tick) coupling->m_app_post_tick(world, dt);
 }
 
-void Coupling::follow_bodies() {
+void Coupling::follow_bodies(double dt) {
   if (!m_system.finalized()) return;
   take_back_momentum();
+  hold_contacts_at_tick_end(dt);
   copy_state_in();
   m_system.clamp_bound_rows();
 }
@@ -495,6 +496,98 @@ void Coupling::hand_over(btRigidBody* body, const Vec3& v, const Vec3& w, double
     if (flags & BT_ENABLE_GYROSCOPIC_FORCE_IMPLICIT_BODY) dw_gyro += body->computeGyroscopicImpulseImplicit_Body(h);
     handed = to_bullet(w) - dw_torque - dw_gyro;
     body->setAngularVelocity(handed);
+  }
+}
+
+// Bullet's solver stops each contact's approach at the velocity the body moves with over the tick, the
+// step's v^{n+1/2} plus Bullet's changes; the body then ends the tick with v^{n+1}, which adds the
+// step's second half: for a body resting on the ground, half a tick of gravity. It read g dt / 2 of
+// sinking while its height held to 1e-12 m, and carried it into the next tick. So the contacts Bullet
+// resolved in this tick (every point that pushed, in the islands of coupled dynamic bodies) hold the
+// end-of-tick velocities too, as sinew's step-4 constraints hold particles on static surfaces: a few
+// Gauss-Seidel passes over those points, in the dispatcher's order, remove any approach beyond what
+// Bullet itself allows (a point still apart by d may close at d / dt) by an equal and opposite impulse
+// on the two bodies (Bullet's masses, applyImpulse), and tangential slip up to the point's friction
+// times that impulse. A contact that separates at the end of the tick is left alone. The particles
+// the step found against dynamic bodies are held the same way (BulletCollisions::hold_dynamic_contacts),
+// in the same passes.
+void Coupling::hold_contacts_at_tick_end(double dt) {
+  const RigidBodyParticles& bodies = m_system.rigid_bodies();
+  m_islands.clear();
+  for (std::size_t b = 0; b < m_bodies.size(); ++b)
+    if (m_bodies[b] && !bodies.kinematic[static_cast<Index>(b)]) m_islands.push_back(m_bodies[b]->getIslandTag());
+  auto in_coupled_island = [&](const btCollisionObject* o) {
+    return o->getIslandTag() >= 0 &&
+           std::find(m_islands.begin(), m_islands.end(), o->getIslandTag()) != m_islands.end();
+  };
+  m_end_contacts.clear();
+  btDispatcher* dispatcher = m_world->getDispatcher();
+  for (int m = 0; m < dispatcher->getNumManifolds(); ++m) {
+    btPersistentManifold* manifold = dispatcher->getManifoldByIndexInternal(m);
+    auto* a = const_cast<btRigidBody*>(btRigidBody::upcast(manifold->getBody0()));
+    auto* b = const_cast<btRigidBody*>(btRigidBody::upcast(manifold->getBody1()));
+    if (!a || !b || !(in_coupled_island(a) || in_coupled_island(b))) continue;
+    for (int k = 0; k < manifold->getNumContacts(); ++k) {
+      btManifoldPoint& point = manifold->getContactPoint(k);
+      if (point.getAppliedImpulse() > btScalar(0)) m_end_contacts.push_back({&point, a, b, 0.0, Vec3::Zero()});
+    }
+  }
+  // The contact points are where the tick's collision detection found them, with the centres of mass
+  // there: a coupled body's lever is taken from its centre at the tick's start, as Bullet's solver
+  // took it (from the centre the body has now, a sphere rolling at 0.3 m/s would read a sinking of
+  // w dt |v| ~ 3e-4 m/s); other bodies use the centre they have now.
+  auto centre_seen = [&](const btRigidBody* body) {
+    const auto found = m_rigid_particles.find(body);
+    if (found == m_rigid_particles.end() || bodies.kinematic[found->second]) return body->getCenterOfMassPosition();
+    return to_bullet(m_x_in.col(found->second));
+  };
+  // The particles' contacts with dynamic bodies alternate with the bodies' own (each moves the other:
+  // a node on a sphere that the ground stops follows it down no further).
+  constexpr int kPasses = 8;
+  const int passes = m_end_contacts.empty() ? 1 : kPasses;
+  for (int pass = 0; pass < passes; ++pass) {
+    for (EndContact& c : m_end_contacts) {
+      const btManifoldPoint& point = *c.point;
+      const Vec3 n = to_eigen(point.m_normalWorldOnB);  // from b towards a
+      const btVector3 ra = point.getPositionWorldOnA() - centre_seen(c.a);
+      const btVector3 rb = point.getPositionWorldOnB() - centre_seen(c.b);
+      // Inverse effective mass of the two bodies at the point along a unit direction d.
+      auto inverse_mass = [&](const Vec3& d) {
+        const btVector3 u = to_bullet(d);
+        const btVector3 ta = ra.cross(u), tb = rb.cross(u);
+        return static_cast<double>(c.a->getInvMass() + c.b->getInvMass() +
+                                   ta.dot(c.a->getInvInertiaTensorWorld() * ta) +
+                                   tb.dot(c.b->getInvInertiaTensorWorld() * tb));
+      };
+      auto relative_velocity = [&] {
+        return to_eigen(c.a->getVelocityInLocalPoint(ra) - c.b->getVelocityInLocalPoint(rb));
+      };
+      auto push = [&](const Vec3& j) {
+        c.a->applyImpulse(to_bullet(j), ra);
+        c.b->applyImpulse(to_bullet(-j), rb);
+      };
+      // Normal: the accumulated impulse stays a push (>= 0).
+      const double allowed = -std::max(0.0, static_cast<double>(point.getDistance())) / dt;
+      const double k_n = inverse_mass(n);
+      if (!(k_n > 0.0)) continue;
+      const double vn = n.dot(relative_velocity());
+      const double jn = std::max(c.normal - (vn - allowed) / k_n, 0.0) - c.normal;
+      c.normal += jn;
+      if (jn != 0.0) push(jn * n);
+      // Friction: the accumulated tangential impulse within the friction disc of the normal one.
+      Vec3 v_t = relative_velocity();
+      v_t -= n.dot(v_t) * n;
+      const double slip = v_t.norm();
+      if (!(slip > 0.0)) continue;
+      const double k_t = inverse_mass(v_t / slip);
+      Vec3 friction = c.friction - v_t / k_t;
+      const double limit = static_cast<double>(point.m_combinedFriction) * c.normal;
+      if (friction.norm() > limit) friction *= limit / friction.norm();
+      const Vec3 jt = friction - c.friction;
+      c.friction = friction;
+      push(jt);
+    }
+    if (m_collisions) m_collisions->hold_dynamic_contacts(m_system.particles());
   }
 }
 

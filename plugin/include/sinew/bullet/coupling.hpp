@@ -29,6 +29,7 @@
 #include <vector>
 
 class btCollisionObject;
+class btManifoldPoint;
 class btDynamicsWorld;
 class btRigidBody;
 
@@ -100,7 +101,9 @@ class Coupling {
   static void pre_tick(btDynamicsWorld* world, btScalar dt);
   static void post_tick(btDynamicsWorld* world, btScalar dt);
   /// After Bullet's integration: bound rows move onto the bodies' new frames (they are W of them).
-  void follow_bodies();
+  void follow_bodies(double dt);
+  /// The contacts Bullet resolved this tick also hold the end-of-tick velocities (see coupling.cpp).
+  void hold_contacts_at_tick_end(double dt);
   /// At the start of a tick: releases coupled bodies that left the world, follows the mass and
   /// static/kinematic state of the others.
   void follow_world();
@@ -133,6 +136,17 @@ class Coupling {
   Vectors3 m_x_in, m_v_in, m_w_in, m_v_next, m_w_next, m_v_position, m_w_position;
   std::vector<Quat> m_q_in;
   std::vector<JointRow> m_joint_rows;
+  // hold_contacts_at_tick_end's scratch: the islands of coupled dynamic bodies, and per contact point
+  // the two bodies and the normal and friction impulses the passes have applied there.
+  std::vector<int> m_islands;
+  struct EndContact {
+    btManifoldPoint* point;
+    btRigidBody* a;
+    btRigidBody* b;
+    double normal;
+    Vec3 friction;
+  };
+  std::vector<EndContact> m_end_contacts;
   std::vector<btScalar> m_joint_buffer;  // Bullet's btConstraintInfo2 arrays for one joint
   bool m_handed_over = false;
   bool m_use_world_gravity = true;
