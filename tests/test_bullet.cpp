@@ -1,5 +1,6 @@
 // The Bullet plugin's exchange (Sifakis et al. 2007, section 5): copy state in, momentum out.
 #include "bullet_scenes.hpp"
+#include "sinew/builders.hpp"
 #include "sinew/bullet/collisions.hpp"
 #include "sinew/bullet/convert.hpp"
 #include "sinew/bullet/coupling.hpp"
@@ -11,6 +12,9 @@
 
 #include <array>
 #include <memory>
+#include <string>
+#include <utility>
+#include <vector>
 
 namespace sinew {
 namespace {
@@ -279,6 +283,289 @@ TEST(BulletCoupling, RemovingBindingsAtRunTimeReleasesTheCloth) {
   EXPECT_NEAR(s.binding_spring_force(spring).norm(), 0.0, 0.0);
 }
 
+// The centre of mass of a set of particles, and its velocity, from the masses they were created with.
+std::pair<Vec3, Vec3> centre_of(const System& s, const std::vector<Index>& nodes) {
+  Vec3 mx = Vec3::Zero(), mv = Vec3::Zero();
+  double m = 0.0;
+  for (Index p : nodes) {
+    const double mp = s.input_mass()[p];
+    mx += mp * s.particles().x.col(p), mv += mp * s.particles().v.col(p), m += mp;
+  }
+  return {mx / m, mv / m};
+}
+
+// A body the application takes away: removed from the world (and then deleted, before the next tick)
+// or released with Coupling::remove. A falling box carries a cloth by its top row (hard-bound) and by a
+// binding spring; once the box is gone only gravity acts on the cloth, so its centre of mass follows
+// y = y0 + v0 t - g t^2 / 2 exactly. The bound nodes are free again with their own mass, the body point
+// and its spring are gone, and the deleted box is never read (the sanitizer build runs this test).
+// Before, sinew kept integrating the box's particle (weightless once out of the world, or read from
+// freed memory) with the cloth still on it.
+TEST(BulletCoupling, ABodyTakenAwayReleasesWhatWasBoundToIt) {
+  for (const bool deleted : {true, false}) {
+    const std::string how = deleted ? "removed from the world and deleted" : "Coupling::remove";
+    BulletWorld bw(btVector3(0, -9.81, 0));
+    btBoxShape shape(btVector3(0.3, 0.05, 0.05));
+    btVector3 inertia;
+    shape.calculateLocalInertia(2, inertia);
+    auto box = std::make_unique<btRigidBody>(btRigidBody::btRigidBodyConstructionInfo(2, nullptr, &shape, inertia));
+    box->setWorldTransform(scenes::at(btVector3(0, 1.0, 0)));
+    box->setActivationState(DISABLE_DEACTIVATION);
+    bw.world().addRigidBody(box.get());
+    bullet::CouplingSettings settings;
+    settings.collisions = false;  // only gravity and the cloth's own forces: free fall is exact
+    bullet::Coupling coupling(&bw.world(), settings);
+    System& s = coupling.system();
+    const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, small_cloth(Vec3(-0.25, 0.95, 0)));
+    for (int i = 0; i < 6; ++i) coupling.bind_here(cloth.node(i, 0), box.get());
+    const Index spring = coupling.attach(cloth.node(2, 5), box.get(), Vec3(0, -0.6, 0), 1e3);
+    const Index body_point = s.binding_springs().b(spring);
+    s.step_settings().cg_tolerance = 1e-13;
+    for (int frame = 0; frame < 10; ++frame) bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+    if (deleted) {
+      bw.world().removeRigidBody(box.get());
+      box.reset();
+    } else {
+      coupling.remove(box.get());
+      EXPECT_THROW(coupling.remove(box.get()), Error) << "released already";
+    }
+    const auto [x0, v0] = centre_of(s, cloth.nodes);
+    const int frames = 30;
+    const double box_vy = deleted ? 0.0 : double(box->getLinearVelocity().y());
+    for (int frame = 0; frame < frames; ++frame) bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+    const double t = frames / 60.0;
+    const auto [x1, v1] = centre_of(s, cloth.nodes);
+    EXPECT_NEAR(x1.y(), x0.y() + v0.y() * t - 0.5 * 9.81 * t * t, 1e-9) << how;
+    EXPECT_NEAR(v1.y(), v0.y() - 9.81 * t, 1e-9) << how;
+    EXPECT_NEAR(x1.x(), x0.x() + v0.x() * t, 1e-9) << how;
+    for (int i = 0; i < 6; ++i) {
+      const Index node = cloth.node(i, 0);
+      EXPECT_EQ(s.particles().kind[node], ParticleKind::free) << how << ", node " << node;
+      EXPECT_EQ(s.particles().mass[node], s.input_mass()[node]) << how << ", node " << node;
+    }
+    EXPECT_EQ(s.particles().kind[body_point], ParticleKind::removed) << how;
+    EXPECT_TRUE(s.binding_springs().removed(spring)) << how;
+    EXPECT_EQ(coupling.body(0), nullptr) << how;
+    if (!deleted) {
+      // A plain Bullet body again: it falls at g, untouched by the cloth.
+      EXPECT_NEAR(box->getLinearVelocity().y(), box_vy - 9.81 * t, 1e-9) << how;
+      bw.world().removeRigidBody(box.get());
+    }
+  }
+}
+
+// A coupled body the application makes static (mass 0) between ticks stops in Bullet; its rigid-body
+// particle must stop too. Before, sinew kept integrating it under the weight of the cloth hanging from
+// it and handed Bullet a velocity that grew without bound (2 m/s after 2 s) on a body that did not
+// move. Made dynamic again, it falls with the cloth: total momentum grows by exactly the weight of
+// everything sinew counts. A kinematic flag is followed the same way.
+TEST(BulletCoupling, ABodyMadeStaticOrKinematicBetweenTicksIsFollowed) {
+  for (const int flag : {int(btCollisionObject::CF_STATIC_OBJECT), int(btCollisionObject::CF_KINEMATIC_OBJECT)}) {
+    const std::string how = flag == btCollisionObject::CF_STATIC_OBJECT ? "static" : "kinematic";
+    BulletWorld bw(btVector3(0, -9.81, 0));
+    btRigidBody* box = add_box(bw, btVector3(0.3, 0.05, 0.05), 2.0, scenes::at(btVector3(0, 1.0, 0)));
+    const btVector3 inertia(btScalar(1) / box->getInvInertiaDiagLocal().x(),
+                            btScalar(1) / box->getInvInertiaDiagLocal().y(),
+                            btScalar(1) / box->getInvInertiaDiagLocal().z());
+    bullet::CouplingSettings settings;
+    settings.collisions = false;
+    bullet::Coupling coupling(&bw.world(), settings);
+    System& s = coupling.system();
+    scenes::ClothGridSettings c = small_cloth(Vec3(-0.25, 0.95, 0));
+    c.stretch_damping = 0.5;
+    const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
+    for (int i = 0; i < 6; ++i) coupling.bind_here(cloth.node(i, 0), box);
+    s.step_settings().cg_tolerance = 1e-13;
+    for (int frame = 0; frame < 10; ++frame) bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+    // Stopped where it is.
+    if (flag == btCollisionObject::CF_STATIC_OBJECT) {
+      box->setMassProps(0, btVector3(0, 0, 0));
+    } else {
+      // Animated through its motion state from now on: held where it is.
+      box->setCollisionFlags(box->getCollisionFlags() | btCollisionObject::CF_KINEMATIC_OBJECT);
+      box->getMotionState()->setWorldTransform(box->getCenterOfMassTransform());
+    }
+    box->setLinearVelocity(btVector3(0, 0, 0));
+    box->setAngularVelocity(btVector3(0, 0, 0));
+    const btTransform held = box->getCenterOfMassTransform();
+    for (int frame = 0; frame < 120; ++frame) {
+      bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+      ASSERT_EQ(bullet::to_eigen(box->getLinearVelocity()), Vec3::Zero()) << how << ", frame " << frame;
+      ASSERT_EQ(bullet::to_eigen(box->getAngularVelocity()), Vec3::Zero()) << how << ", frame " << frame;
+    }
+    EXPECT_TRUE(s.rigid_bodies().kinematic[0]) << how;
+    EXPECT_EQ(s.rigid_bodies().v.col(0), Vec3::Zero()) << how;
+    EXPECT_EQ(bullet::to_eigen(box->getCenterOfMassPosition()), bullet::to_eigen(held.getOrigin())) << how;
+    for (int i = 0; i < 6; ++i) {
+      const Vec3 local = s.hard_bindings().rigid_offset_body(i);
+      const Vec3 on_box = bullet::to_eigen(held * bullet::to_bullet(local));
+      EXPECT_LT((s.particles().x.col(cloth.node(i, 0)) - on_box).norm(), 1e-12) << how;
+    }
+    // Dynamic again: everything falls.
+    if (flag == btCollisionObject::CF_STATIC_OBJECT) {
+      box->setMassProps(2, inertia);
+    } else {
+      box->setCollisionFlags(box->getCollisionFlags() & ~btCollisionObject::CF_KINEMATIC_OBJECT);
+    }
+    bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+    EXPECT_FALSE(s.rigid_bodies().kinematic[0]) << how;
+    const Vec3 p0 = s.linear_momentum();
+    const int ticks = 60;
+    for (int tick = 0; tick < ticks; ++tick) bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+    double counted = 0.0;
+    for (Index i = 0; i < s.particles().size(); ++i)
+      if (s.particles().kind[i] == ParticleKind::free) counted += s.particles().mass[i];
+    counted += s.rigid_bodies().mass[0];
+    EXPECT_NEAR(s.linear_momentum().y() - p0.y(), -counted * 9.81 * ticks / 240.0, 1e-9) << how;
+    EXPECT_LT(box->getCenterOfMassPosition().y(), held.getOrigin().y() - 0.01) << how;
+    EXPECT_NEAR(s.rigid_bodies().v(1, 0), box->getLinearVelocity().y(), 1e-12) << how;
+  }
+}
+
+// Binding to a body that is not in the coupling's world is refused, naming the body: Bullet would
+// never integrate it while sinew integrated its particle.
+TEST(BulletCoupling, ABodyOutsideTheWorldIsRefused) {
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  BulletWorld other(btVector3(0, -9.81, 0));
+  btRigidBody* elsewhere = add_box(other, btVector3(0.1, 0.1, 0.1), 1.0, scenes::at(btVector3(0, 1, 0)));
+  btBoxShape shape(btVector3(0.1, 0.1, 0.1));
+  btRigidBody never_added(btRigidBody::btRigidBodyConstructionInfo(1, nullptr, &shape, btVector3(1, 1, 1)));
+  bullet::Coupling coupling(&bw.world());
+  System& s = coupling.system();
+  const Index node = s.add_particle(Vec3::Zero(), Vec3::Zero(), 0.1);
+  for (btRigidBody* body : {&never_added, elsewhere}) {
+    try {
+      coupling.bind(node, body, Vec3::Zero());
+      ADD_FAILURE() << "bound to a body outside the world";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("is not in the coupling's world"), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_EQ(s.rigid_bodies().size(), 0);
+  EXPECT_EQ(s.hard_bindings().rigid_count(), 0);
+}
+
+// A rigid body added to the coupled system directly (System::add_rigid_body) is sinew's own: it falls
+// at sinew's gravity, g t^2 / 2, and Bullet bodies coupled after it keep their own states. Before, the
+// coupling's list of Bullet bodies and the system's rigid bodies fell out of step, and the own body
+// was given the next Bullet body's state.
+TEST(BulletCoupling, ARigidBodyAddedToTheSystemDirectlyIsSinewsOwn) {
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  btRigidBody* first = add_box(bw, btVector3(0.1, 0.1, 0.1), 0.0, scenes::at(btVector3(-1, 1, 0)));
+  btRigidBody* second = add_box(bw, btVector3(0.1, 0.1, 0.1), 1.0, scenes::at(btVector3(1, 3, 0)));
+  bullet::CouplingSettings settings;
+  settings.collisions = false;
+  bullet::Coupling coupling(&bw.world(), settings);
+  System& s = coupling.system();
+  EXPECT_EQ(coupling.rigid_particle(first), 0);
+  RigidBodySettings own;
+  own.x = Vec3(0, 5, 0);
+  const Index own_index = s.add_rigid_body(own);
+  EXPECT_EQ(own_index, 1);
+  EXPECT_EQ(coupling.rigid_particle(second), 2);
+  EXPECT_EQ(coupling.body(1), nullptr);
+  EXPECT_EQ(coupling.body(2), second);
+  const int ticks = 120;
+  for (int tick = 0; tick < ticks; ++tick) bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+  const double t = ticks / 240.0;
+  EXPECT_NEAR(s.rigid_bodies().x(1, own_index), 5.0 - 0.5 * 9.81 * t * t, 1e-9);
+  EXPECT_NEAR(s.rigid_bodies().v(1, own_index), -9.81 * t, 1e-9);
+  EXPECT_EQ(s.rigid_bodies().x.col(2), bullet::to_eigen(second->getCenterOfMassPosition()));
+  EXPECT_EQ(s.rigid_bodies().x.col(0), bullet::to_eigen(first->getCenterOfMassPosition()));
+}
+
+// What the application reads between stepSimulation calls is the end-of-tick state. Bodies resting on
+// what holds them read the velocity they move with: a sphere on the ground and a box on a 20 degree
+// slope whose friction (0.8 > tan 20) holds it. Bullet's contacts stop the approach at the velocity a
+// body moves with over the tick, the step's half-step velocity; the step's second half then added half
+// a tick of gravity, and they read g dt / 2 = 0.02 m/s of sinking (the box, of sliding too) while
+// their positions held to round-off. Here the reading and the motion over the last tick agree.
+TEST(BulletCoupling, ARestingBodyReadsTheVelocityItMovesWith) {
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  bw.add_body(bw.keep(std::make_unique<btStaticPlaneShape>(btVector3(0, 1, 0), 0)), 0.0,
+              scenes::at(btVector3(0, 0, 0)));
+  const btQuaternion tilt(btVector3(0, 0, 1), btScalar(20 * SIMD_PI / 180));
+  btRigidBody* slope = add_box(bw, btVector3(1, 0.1, 1), 0.0, scenes::at(btVector3(3, 1, 0), tilt));
+  slope->setFriction(0.8);
+  btRigidBody* sphere =
+      bw.add_body(bw.keep(std::make_unique<btSphereShape>(0.3)), 1.0, scenes::at(btVector3(0, 0.3, 0)));
+  sphere->setActivationState(DISABLE_DEACTIVATION);
+  const btVector3 on_slope = scenes::at(btVector3(3, 1, 0), tilt) * btVector3(0, 0.2, 0);
+  btRigidBody* box = add_box(bw, btVector3(0.1, 0.1, 0.1), 1.0, scenes::at(on_slope, tilt));
+  box->setFriction(0.8);
+  bullet::Coupling coupling(&bw.world());
+  coupling.rigid_particle(sphere);
+  coupling.rigid_particle(box);
+  const double dt = 1.0 / 240;
+  for (int tick = 0; tick < 240; ++tick) bw.world().stepSimulation(btScalar(dt), 1, btScalar(dt));
+  for (btRigidBody* body : {sphere, box}) {
+    const std::string name = body == sphere ? "sphere" : "box";
+    const Vec3 x0 = bullet::to_eigen(body->getCenterOfMassPosition());
+    bw.world().stepSimulation(btScalar(dt), 1, btScalar(dt));
+    const Vec3 moved = (bullet::to_eigen(body->getCenterOfMassPosition()) - x0) / dt;
+    const Vec3 v = bullet::to_eigen(body->getLinearVelocity());
+    // To what Bullet's iterative contact and friction solve leaves (about 1e-5 m/s on the box).
+    EXPECT_LT(moved.norm(), 1e-4) << name << " rests";
+    EXPECT_LT((v - moved).norm(), 1e-4) << name << " reads v = " << v.transpose();
+    EXPECT_LT(bullet::to_eigen(body->getAngularVelocity()).norm(), 1e-3) << name;
+  }
+}
+
+// The README's hello scene (demos/hello.cpp): a cloth tied at its centre to the top of a 1 kg sphere by
+// a 1e4 N/m binding spring, at rest on the ground after 3 s. The collision thickness holds the tied node
+// 1 cm above the spring's end on the sphere, so the spring carries k * 1 cm ~ 100 N. Between ticks the
+// node reads the velocity it moves with and the spring reads that force; the sphere reads no sinking;
+// the spring's end on the sphere sits on the sphere's final frame, moving with its final twist. Before,
+// the node read |v| = 13 m/s while it moved at 0.15 m/s (step 4 pulled it into the sphere, and only the
+// next step's projection took that out), the spring read 2 N, and the sphere read g dt / 2 of sinking.
+TEST(BulletCoupling, HelloSceneReadsTheStateItIsIn) {
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  bw.add_body(bw.keep(std::make_unique<btStaticPlaneShape>(btVector3(0, 1, 0), 0)), 0.0,
+              scenes::at(btVector3(0, 0, 0)));
+  btSphereShape ball(0.3);
+  btVector3 inertia;
+  ball.calculateLocalInertia(1, inertia);
+  btRigidBody* sphere = bw.add_body(&ball, 1.0, scenes::at(btVector3(0, 2, 0)), inertia);
+  bullet::Coupling coupling(&bw.world());
+  System& s = coupling.system();
+  ClothGridSettings grid;
+  grid.nx = grid.ny = 15;
+  grid.width = grid.height = 1.2;
+  grid.mass = 0.2;
+  grid.origin = {-0.6, 2.31, -0.6};
+  grid.down = {0, 0, 1};
+  const ClothGrid cloth = add_cloth_grid(s, grid);
+  const double k = 1e4;
+  const Vec3 local(0, 0.3, 0);
+  const Index spring = coupling.attach(cloth.node(7, 7), sphere, local, k);
+  const Index node = s.binding_springs().a(spring), end = s.binding_springs().b(spring);
+  for (int frame = 0; frame < 180; ++frame) bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+  const double dt = 1.0 / 240;
+  double worst_node = 0.0, worst_force = 0.0, worst_sinking = 0.0, worst_end = 0.0;
+  for (int tick = 0; tick < 8; ++tick) {
+    const Vec3 x0 = s.particles().x.col(node);
+    bw.world().stepSimulation(btScalar(dt), 1, btScalar(dt));
+    const Vec3 moved = (s.particles().x.col(node) - x0) / dt;
+    worst_node = std::max(worst_node, (Vec3(s.particles().v.col(node)) - moved).norm());
+
+    const Vec3 stretch = s.particles().x.col(node) - s.particles().x.col(end);
+    const Vec3 f = s.binding_spring_force(spring);
+    worst_force = std::max(worst_force, (f + k * stretch).norm() / (k * stretch.norm()));
+    worst_sinking = std::max(worst_sinking, std::abs(double(sphere->getLinearVelocity().y())));
+    const btTransform& frame = sphere->getCenterOfMassTransform();
+    const Vec3 r = bullet::to_eigen(frame.getBasis() * bullet::to_bullet(local));
+    const Vec3 v_end =
+        bullet::to_eigen(sphere->getLinearVelocity()) + bullet::to_eigen(sphere->getAngularVelocity()).cross(r);
+    worst_end = std::max({worst_end, (Vec3(s.particles().x.col(end)) - bullet::to_eigen(frame.getOrigin()) - r).norm(),
+                          (Vec3(s.particles().v.col(end)) - v_end).norm()});
+    EXPECT_GT(k * stretch.norm(), 50.0) << "the thickness holds the node off the spring's end";
+  }
+  EXPECT_LT(worst_node, 0.01) << "m/s between the node's reading and its motion";
+  EXPECT_LT(worst_force, 0.02) << "of k times the stretch";
+  EXPECT_LT(worst_sinking, 1e-9) << "m/s";
+  EXPECT_LT(worst_end, 1e-12);
+  EXPECT_NEAR(sphere->getCenterOfMassPosition().y(), 0.3, 1e-9);
+}
 }  // namespace
 }  // namespace sinew
 

@@ -20,23 +20,23 @@ Mat3 RigidBodyParticles::impulse_matrix(Index b, const Vec3& r) const {
   return Mat3::Identity() / mass[b] + rs.transpose() * world_inverse_inertia(b) * rs;
 }
 
+void validate_rigid_body_mass(Index b, double mass, const Vec3& I) {
+  if (!(std::isfinite(mass) && mass > 0.0)) fail("rigid body ", b, ": mass ", mass, " must be positive and finite");
+  for (int i = 0; i < 3; ++i)
+    if (!(std::isfinite(I[i]) && I[i] > 0.0))
+      fail("rigid body ", b, ": principal inertia ", i, " is ", I[i], ", must be positive and finite");
+  // A physical inertia satisfies the triangle inequality I_a <= I_b + I_c.
+  if (I[0] > I[1] + I[2] + 1e-12 * I.sum() || I[1] > I[0] + I[2] + 1e-12 * I.sum() ||
+      I[2] > I[0] + I[1] + 1e-12 * I.sum())
+    fail("rigid body ", b, ": principal inertia (", I.transpose(), ") violates the triangle inequality");
+}
+
 Index add_rigid_body(RigidBodyParticles& bodies, const RigidBodySettings& s) {
   const Index b = bodies.size();
   if (!all_finite(s.x) || !all_finite(s.v) || !all_finite(s.w)) fail("rigid body ", b, ": state is not finite");
   if (!std::isfinite(s.q.norm()) || std::abs(s.q.norm() - 1.0) > 1e-6)
     fail("rigid body ", b, ": orientation is not a unit quaternion (norm ", s.q.norm(), ")");
-  if (!s.kinematic) {
-    if (!(std::isfinite(s.mass) && s.mass > 0.0))
-      fail("rigid body ", b, ": mass ", s.mass, " must be positive and finite");
-    for (int i = 0; i < 3; ++i)
-      if (!(std::isfinite(s.inertia[i]) && s.inertia[i] > 0.0))
-        fail("rigid body ", b, ": principal inertia ", i, " is ", s.inertia[i], ", must be positive and finite");
-    // A physical inertia satisfies the triangle inequality I_a <= I_b + I_c.
-    const Vec3& I = s.inertia;
-    if (I[0] > I[1] + I[2] + 1e-12 * I.sum() || I[1] > I[0] + I[2] + 1e-12 * I.sum() ||
-        I[2] > I[0] + I[1] + 1e-12 * I.sum())
-      fail("rigid body ", b, ": principal inertia (", I.transpose(), ") violates the triangle inequality");
-  }
+  if (!s.kinematic) validate_rigid_body_mass(b, s.mass, s.inertia);
   const Index n = b + 1;
   bodies.x.conservativeResize(3, n);
   bodies.v.conservativeResize(3, n);

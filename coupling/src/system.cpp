@@ -90,6 +90,18 @@ Index System::add_rigid_body(const RigidBodySettings& settings) {
   return sinew::add_rigid_body(m_bodies, settings);
 }
 
+void System::set_rigid_body_mass(Index body, bool kinematic, double mass, const Vec3& inertia) {
+  if (body < 0 || body >= m_bodies.size())
+    fail("set_rigid_body_mass: rigid body ", body, " does not exist (there are ", m_bodies.size(), ")");
+  if (!kinematic) validate_rigid_body_mass(body, mass, inertia);
+  // The merged masses come out first: they would otherwise be taken out of the new mass at set-up.
+  m_hard.release_masses_from_bodies(m_bodies);
+  m_bodies.kinematic[static_cast<std::size_t>(body)] = kinematic ? 1 : 0;
+  m_bodies.mass[body] = kinematic ? kInfinity : mass;
+  m_bodies.inertia.col(body) = kinematic ? Vec3::Constant(kInfinity) : inertia;
+  note_topology_change();
+}
+
 bool System::unbind(Index particle) {
   note_topology_change();
   return m_hard.remove(particle);

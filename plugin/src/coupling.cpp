@@ -166,20 +166,28 @@ void Coupling::pre_tick(btDynamicsWorld* world, btScalar dt) {
 void Coupling::post_tick(btDynamicsWorld* world, btScalar dt) {
   Coupling* coupling = find_coupling(world);
   if (!coupling) return;
-  coupling->follow_bodies();
+  coupling->follow_bodies(static_cast<double>(dt));
   if (coupling->m_app_post_tick) coupling->m_app_post_tick(world, dt);
 }
 
-void Coupling::follow_bodies() {
+void Coupling::follow_bodies(double dt) {
   if (!m_system.finalized()) return;
   take_back_momentum();
+  hold_contacts_at_tick_end(dt);
   copy_state_in();
   m_system.clamp_bound_rows();
 }
 
 Index Coupling::rigid_particle(btRigidBody* body) {
   if (!body) fail("bullet coupling: rigid body is null");
+  add_own_body_slots();
   if (const auto found = m_rigid_particles.find(body); found != m_rigid_particles.end()) return found->second;
+  // A body outside the world would never be integrated by Bullet while sinew integrated its particle.
+  const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
+  const int slot = body->getWorldArrayIndex();
+  if (slot < 0 || slot >= objects.size() || objects[slot] != body)
+    fail("bullet coupling: rigid body ", static_cast<const void*>(body),
+         " is not in the coupling's world; add it (addRigidBody) before binding to it");
   const btTransform& frame = body->getCenterOfMassTransform();
   RigidBodySettings s;
   s.x = to_eigen(frame.getOrigin());
@@ -198,8 +206,113 @@ Index Coupling::rigid_particle(btRigidBody* body) {
   s.gravity = false;  // gravity comes with Bullet's total force on the body, copied in every tick
   const Index b = m_system.add_rigid_body(s);
   m_bodies.push_back(body);
+  m_seen_inverse_mass.push_back(body->getInvMass());
+  m_seen_inverse_inertia.push_back(body->getInvInertiaDiagLocal());
   m_rigid_particles.emplace(body, b);
   return b;
+}
+
+void Coupling::add_own_body_slots() {
+  const auto count = static_cast<std::size_t>(m_system.rigid_bodies().size());
+  if (m_bodies.size() >= count) return;
+  m_bodies.resize(count, nullptr);
+  m_seen_inverse_mass.resize(count, btScalar(0));
+  m_seen_inverse_inertia.resize(count, btVector3(0, 0, 0));
+}
+
+void Coupling::remove(btRigidBody* body) {
+  const auto found = body ? m_rigid_particles.find(body) : m_rigid_particles.end();
+  if (found == m_rigid_particles.end())
+    fail("Coupling::remove: rigid body ", static_cast<const void*>(body), " is not coupled");
+  release(found->second);
+}
+
+void Coupling::release(Index b) {
+  // Points with a mass of their own go free with it; massless ones (body points, and points embedded
+  // among them that set-up has not yet resolved onto the body) have nothing left to follow.
+  const RigidBindings& rigid = m_system.hard_bindings().rigid();
+  const LinearBindings& linear = m_system.hard_bindings().linear();
+  const VectorXd& mass = m_system.input_mass();
+  std::vector<Index> freed, removed;
+  std::vector<std::uint8_t> is_removed(static_cast<std::size_t>(m_system.particles().size()), 0);
+  for (Index k = 0; k < rigid.size(); ++k) {
+    if (rigid.body(k) != b) continue;
+    const Index p = rigid.particle(k);
+    (mass[p] > 0.0 ? freed : removed).push_back(p);
+    if (mass[p] == 0.0) is_removed[static_cast<std::size_t>(p)] = 1;
+  }
+  for (bool grew = true; grew;) {
+    grew = false;
+    for (Index k = 0; k < linear.size(); ++k) {
+      const Index p = linear.particle(k);
+      if (is_removed[static_cast<std::size_t>(p)] || mass[p] > 0.0) continue;
+      for (Index parent : linear.parents(k))
+        if (is_removed[static_cast<std::size_t>(parent)]) {
+          removed.push_back(p);
+          is_removed[static_cast<std::size_t>(p)] = 1;
+          grew = true;
+          break;
+        }
+    }
+  }
+  // The particle stays (indices keep their meaning) as a kinematic body at rest that nothing uses.
+  m_system.set_rigid_body_mass(b, true);
+  RigidBodyParticles& bodies = m_system.rigid_bodies();
+  bodies.v.col(b).setZero();
+  bodies.w.col(b).setZero();
+  for (Index p : freed) m_system.unbind(p);
+  if (!removed.empty()) m_system.remove_particles(removed);
+  m_rigid_particles.erase(m_bodies[static_cast<std::size_t>(b)]);
+  m_bodies[static_cast<std::size_t>(b)] = nullptr;
+}
+
+void Coupling::follow_world() {
+  add_own_body_slots();
+  // Which coupled bodies are still in the world, from the world's own list: a body the application
+  // removed (and perhaps deleted) is never read.
+  const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
+  m_in_world.assign(m_bodies.size(), 0);
+  for (int o = 0; o < objects.size(); ++o)
+    if (const auto found = m_rigid_particles.find(objects[o]); found != m_rigid_particles.end())
+      m_in_world[static_cast<std::size_t>(found->second)] = 1;
+  for (std::size_t b = 0; b < m_bodies.size(); ++b) {
+    if (!m_bodies[b]) continue;
+    if (!m_in_world[b]) {
+      release(static_cast<Index>(b));
+    } else {
+      follow_mass(static_cast<Index>(b));
+    }
+  }
+}
+
+void Coupling::follow_mass(Index b) {
+  const auto i = static_cast<std::size_t>(b);
+  const btRigidBody* body = m_bodies[i];
+  RigidBodyParticles& bodies = m_system.rigid_bodies();
+  const bool prescribed = body->isStaticOrKinematicObject() || body->getInvMass() == btScalar(0);
+  const bool changed =
+      body->getInvMass() != m_seen_inverse_mass[i] || body->getInvInertiaDiagLocal() != m_seen_inverse_inertia[i];
+  if (prescribed == static_cast<bool>(bodies.kinematic[b]) && !changed) return;
+  m_seen_inverse_mass[i] = body->getInvMass();
+  m_seen_inverse_inertia[i] = body->getInvInertiaDiagLocal();
+  if (prescribed) {
+    if (bodies.kinematic[b]) return;
+    m_system.set_rigid_body_mass(b, true);
+    // From here it moves as Bullet moves it (copy_state_in): from its pose now.
+    const btTransform& frame = body->getCenterOfMassTransform();
+    bodies.x.col(b) = to_eigen(frame.getOrigin());
+    bodies.q[b] = to_eigen(frame.getRotation());
+    return;
+  }
+  const btVector3 inverse = body->getInvInertiaDiagLocal();
+  Vec3 inertia;
+  for (int d = 0; d < 3; ++d) {
+    if (!(inverse[d] > btScalar(0)))
+      fail("bullet coupling: rigid body ", b, " has a locked rotation axis (inverse inertia ", d,
+           " is 0), which rigid-body particles do not support yet");
+    inertia[d] = 1.0 / static_cast<double>(inverse[d]);
+  }
+  m_system.set_rigid_body_mass(b, false, 1.0 / static_cast<double>(body->getInvMass()), inertia);
 }
 
 Index Coupling::bind(Index particle, btRigidBody* body, const Vec3& local) {
@@ -239,8 +352,9 @@ Index Coupling::attach(Index point, btRigidBody* body, const Vec3& local, double
 // binding springs between rigid bodies, whose v^{n+1} flips sign every step. Bullet's own velocity
 // changes in step 7 (contacts, constraints) are kept on top.
 StepStats Coupling::tick(double dt) {
-  // The world's gravity as it is now: an application may change it between ticks.
+  // The world and its bodies as they are now: an application may change them between ticks.
   if (m_use_world_gravity) m_system.set_gravity(to_eigen(m_world->getGravity()));
+  follow_world();
   copy_state_in();
   copy_joints_in(dt);
   // A tick that throws leaves the state of its start: the deformables and rigid-body particles as
@@ -273,18 +387,21 @@ void Coupling::copy_state_in() {
     m_q_in.assign(static_cast<std::size_t>(count), Quat::Identity());
   }
   for (Index b = 0; b < count; ++b) {
-    const btRigidBody* body = m_bodies[b];
+    const btRigidBody* body = m_bodies[static_cast<std::size_t>(b)];
+    if (!body) continue;  // sinew's own or released: the step alone moves it
     // A kinematic body jumps to its new pose when stepSimulation starts and reports the velocity that
     // covers that motion over the whole call. Its particle keeps its own pose and moves with that
     // velocity tick by tick, so the cloth on it sweeps smoothly and meets the new pose at the end of the
-    // call, exactly where Bullet has the body.
-    if (!bodies.kinematic[b]) {
+    // call, exactly where Bullet has the body. A static body stays where it is put, whatever velocity it
+    // was left with when it was made static.
+    const bool is_static = bodies.kinematic[b] && !body->isKinematicObject();
+    if (!bodies.kinematic[b] || is_static) {
       const btTransform& frame = body->getCenterOfMassTransform();
       bodies.x.col(b) = to_eigen(frame.getOrigin());
       bodies.q[b] = to_eigen(frame.getRotation());
     }
-    bodies.v.col(b) = to_eigen(body->getLinearVelocity());
-    bodies.w.col(b) = to_eigen(body->getAngularVelocity());
+    bodies.v.col(b) = is_static ? Vec3::Zero() : to_eigen(body->getLinearVelocity());
+    bodies.w.col(b) = is_static ? Vec3::Zero() : to_eigen(body->getAngularVelocity());
     // Gravity and the application's forces, which Bullet gathered before this tick: the step carries
     // them, so the deformables feel the body accelerate as it will.
     if (!bodies.kinematic[b]) {
@@ -302,7 +419,7 @@ void Coupling::hand_over_position_velocity(double dt) {
   const RigidBodyParticles& bodies = m_system.rigid_bodies();
   for (std::size_t b = 0; b < m_bodies.size(); ++b) {
     const auto i = static_cast<Index>(b);
-    if (bodies.kinematic[i]) continue;
+    if (!m_bodies[b] || bodies.kinematic[i]) continue;
     btRigidBody* body = m_bodies[b];
     m_v_next.col(i) = bodies.v.col(i);
     m_w_next.col(i) = bodies.w.col(i);
@@ -328,9 +445,8 @@ void Coupling::hand_over_position_velocity(double dt) {
 void Coupling::copy_joints_in(double dt) {
   m_joint_rows.clear();
   auto index_of = [&](const btRigidBody* body) -> Index {
-    for (std::size_t b = 0; b < m_bodies.size(); ++b)
-      if (m_bodies[b] == body) return static_cast<Index>(b);
-    return -1;
+    const auto found = m_rigid_particles.find(body);
+    return found == m_rigid_particles.end() ? -1 : found->second;
   };
   const RigidBodyParticles& bodies = m_system.rigid_bodies();
   const btContactSolverInfo& solver = m_world->getSolverInfo();
@@ -392,13 +508,105 @@ void Coupling::hand_over(btRigidBody* body, const Vec3& v, const Vec3& w, double
   }
 }
 
+// Bullet's solver stops each contact's approach at the velocity the body moves with over the tick, the
+// step's v^{n+1/2} plus Bullet's changes; the body then ends the tick with v^{n+1}, which adds the
+// step's second half: for a body resting on the ground, half a tick of gravity. It read g dt / 2 of
+// sinking while its height held to 1e-12 m, and carried it into the next tick. So the contacts Bullet
+// resolved in this tick (every point that pushed, in the islands of coupled dynamic bodies) hold the
+// end-of-tick velocities too, as sinew's step-4 constraints hold particles on static surfaces: a few
+// Gauss-Seidel passes over those points, in the dispatcher's order, remove any approach beyond what
+// Bullet itself allows (a point still apart by d may close at d / dt) by an equal and opposite impulse
+// on the two bodies (Bullet's masses, applyImpulse), and tangential slip up to the point's friction
+// times that impulse. A contact that separates at the end of the tick is left alone. The particles
+// the step found against dynamic bodies are held the same way (BulletCollisions::hold_dynamic_contacts),
+// in the same passes.
+void Coupling::hold_contacts_at_tick_end(double dt) {
+  const RigidBodyParticles& bodies = m_system.rigid_bodies();
+  m_islands.clear();
+  for (std::size_t b = 0; b < m_bodies.size(); ++b)
+    if (m_bodies[b] && !bodies.kinematic[static_cast<Index>(b)]) m_islands.push_back(m_bodies[b]->getIslandTag());
+  auto in_coupled_island = [&](const btCollisionObject* o) {
+    return o->getIslandTag() >= 0 &&
+           std::find(m_islands.begin(), m_islands.end(), o->getIslandTag()) != m_islands.end();
+  };
+  m_end_contacts.clear();
+  btDispatcher* dispatcher = m_world->getDispatcher();
+  for (int m = 0; m < dispatcher->getNumManifolds(); ++m) {
+    btPersistentManifold* manifold = dispatcher->getManifoldByIndexInternal(m);
+    auto* a = const_cast<btRigidBody*>(btRigidBody::upcast(manifold->getBody0()));
+    auto* b = const_cast<btRigidBody*>(btRigidBody::upcast(manifold->getBody1()));
+    if (!a || !b || !(in_coupled_island(a) || in_coupled_island(b))) continue;
+    for (int k = 0; k < manifold->getNumContacts(); ++k) {
+      btManifoldPoint& point = manifold->getContactPoint(k);
+      if (point.getAppliedImpulse() > btScalar(0)) m_end_contacts.push_back({&point, a, b, 0.0, Vec3::Zero()});
+    }
+  }
+  // The contact points are where the tick's collision detection found them, with the centres of mass
+  // there: a coupled body's lever is taken from its centre at the tick's start, as Bullet's solver
+  // took it (from the centre the body has now, a sphere rolling at 0.3 m/s would read a sinking of
+  // w dt |v| ~ 3e-4 m/s); other bodies use the centre they have now.
+  auto centre_seen = [&](const btRigidBody* body) {
+    const auto found = m_rigid_particles.find(body);
+    if (found == m_rigid_particles.end() || bodies.kinematic[found->second]) return body->getCenterOfMassPosition();
+    return to_bullet(m_x_in.col(found->second));
+  };
+  // The particles' contacts with dynamic bodies alternate with the bodies' own (each moves the other:
+  // a node on a sphere that the ground stops follows it down no further).
+  constexpr int kPasses = 8;
+  const int passes = m_end_contacts.empty() ? 1 : kPasses;
+  for (int pass = 0; pass < passes; ++pass) {
+    for (EndContact& c : m_end_contacts) {
+      const btManifoldPoint& point = *c.point;
+      const Vec3 n = to_eigen(point.m_normalWorldOnB);  // from b towards a
+      const btVector3 ra = point.getPositionWorldOnA() - centre_seen(c.a);
+      const btVector3 rb = point.getPositionWorldOnB() - centre_seen(c.b);
+      // Inverse effective mass of the two bodies at the point along a unit direction d.
+      auto inverse_mass = [&](const Vec3& d) {
+        const btVector3 u = to_bullet(d);
+        const btVector3 ta = ra.cross(u), tb = rb.cross(u);
+        return static_cast<double>(c.a->getInvMass() + c.b->getInvMass() +
+                                   ta.dot(c.a->getInvInertiaTensorWorld() * ta) +
+                                   tb.dot(c.b->getInvInertiaTensorWorld() * tb));
+      };
+      auto relative_velocity = [&] {
+        return to_eigen(c.a->getVelocityInLocalPoint(ra) - c.b->getVelocityInLocalPoint(rb));
+      };
+      auto push = [&](const Vec3& j) {
+        c.a->applyImpulse(to_bullet(j), ra);
+        c.b->applyImpulse(to_bullet(-j), rb);
+      };
+      // Normal: the accumulated impulse stays a push (>= 0).
+      const double allowed = -std::max(0.0, static_cast<double>(point.getDistance())) / dt;
+      const double k_n = inverse_mass(n);
+      if (!(k_n > 0.0)) continue;
+      const double vn = n.dot(relative_velocity());
+      const double jn = std::max(c.normal - (vn - allowed) / k_n, 0.0) - c.normal;
+      c.normal += jn;
+      if (jn != 0.0) push(jn * n);
+      // Friction: the accumulated tangential impulse within the friction disc of the normal one.
+      Vec3 v_t = relative_velocity();
+      v_t -= n.dot(v_t) * n;
+      const double slip = v_t.norm();
+      if (!(slip > 0.0)) continue;
+      const double k_t = inverse_mass(v_t / slip);
+      Vec3 friction = c.friction - v_t / k_t;
+      const double limit = static_cast<double>(point.m_combinedFriction) * c.normal;
+      if (friction.norm() > limit) friction *= limit / friction.norm();
+      const Vec3 jt = friction - c.friction;
+      c.friction = friction;
+      push(jt);
+    }
+    if (m_collisions) m_collisions->hold_dynamic_contacts(m_system.particles());
+  }
+}
+
 void Coupling::take_back_momentum() {
   if (!m_handed_over) return;
   m_handed_over = false;
   const RigidBodyParticles& bodies = m_system.rigid_bodies();
   for (std::size_t b = 0; b < m_bodies.size(); ++b) {
     const auto i = static_cast<Index>(b);
-    if (bodies.kinematic[i]) continue;
+    if (!m_bodies[b] || bodies.kinematic[i]) continue;
     btRigidBody* body = m_bodies[b];
     // v^{n+1} from the Newmark step plus whatever Bullet changed in its own part of the tick.
     const Vec3 bullet_dv = to_eigen(body->getLinearVelocity()) - m_v_position.col(i);

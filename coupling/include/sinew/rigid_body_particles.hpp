@@ -52,6 +52,10 @@ struct RigidBodyParticles {
 /// a body; the message names the body index.
 Index add_rigid_body(RigidBodyParticles& bodies, const RigidBodySettings& settings);
 
+/// Throws naming body b unless mass is positive and finite and the principal moments are positive,
+/// finite and satisfy the triangle inequality.
+void validate_rigid_body_mass(Index b, double mass, const Vec3& inertia);
+
 /// Rotation by the rotation vector theta (angle |theta| about theta/|theta|): q(theta).
 Quat rotation_from_vector(const Vec3& theta);
 

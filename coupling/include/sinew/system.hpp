@@ -164,6 +164,12 @@ class System {
   /// between steps.
   Index add_kinematic_particle(const Vec3& x, const Vec3& v = Vec3::Zero());
   Index add_rigid_body(const RigidBodySettings& settings);
+  /// Changes rigid body `body`'s mass between steps, as a rigid solver may (a body made static or
+  /// kinematic and back, or given a new mass): kinematic (infinite mass, prescribed twist), or
+  /// dynamic with `mass` and principal moments `inertia` about its own centre of mass and principal
+  /// frame, which stay where they are. Masses merged into bodies are taken out first; the next step
+  /// sets the system up again. Validated as add_rigid_body, naming the body.
+  void set_rigid_body_mass(Index body, bool kinematic, double mass = 1.0, const Vec3& inertia = Vec3::Ones());
   // Hard bindings may be added and removed after set-up too (the next step redistributes masses); not
   // those on rigid frames while SystemSettings::absorb_bound_mass_into_rigid_bodies merges their mass.
   /// Hard binding of `particle` to parents with barycentric weights (sum 1). Returns its index.

@@ -41,6 +41,10 @@ class BulletCollisions final : public CollisionSource {
                    const std::unordered_map<const btCollisionObject*, Index>* rigid_particles);
   std::string_view name() const override { return "bullet shapes"; }
   void process(CollisionContext& context) override;
+  /// At the end of a tick: one pass over the particles the tick's last step found against dynamic
+  /// bodies, removing their approach relative to the bodies' velocities now (see collisions.cpp), each
+  /// body taking the opposite impulse in Bullet.
+  void hold_dynamic_contacts(Particles& particles);
   /// Applies the summed impulses on dynamic bodies without a rigid-body particle, once each.
   void apply_pending_impulses();
   /// Forgets them (the tick that gathered them failed).
@@ -63,6 +67,14 @@ class BulletCollisions final : public CollisionSource {
     btVector3 impulse, torque_impulse;
   };
   std::vector<Pending> m_pending;
+  /// A particle within the thickness of a dynamic body in the last process() call.
+  struct DynamicContact {
+    Index particle;
+    btRigidBody* body;
+    Vec3 normal;
+  };
+  std::vector<DynamicContact> m_dynamic_contacts;
+  void push_pending(btRigidBody* body, const btVector3& arm, const Vec3& j);
   double m_deepest = 0.0;
   int m_contacts = 0;
 };

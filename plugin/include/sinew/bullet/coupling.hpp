@@ -7,17 +7,29 @@
 // had installed, which it chains), so rigid bodies and deformables advance with the same fixed step.
 // A post-tick callback (also chained) puts the hard-bound points back on the frames Bullet has just
 // integrated, so a point bound to a body is exactly on it whenever the application looks.
+//
+// Bodies the application changes between ticks are followed at the next tick: a coupled body made
+// static or kinematic (mass 0, CF_STATIC_OBJECT, CF_KINEMATIC_OBJECT) gets a kinematic rigid-body
+// particle, and a dynamic one again when it is made dynamic again (with the mass it has then). A
+// coupled body removed from the world is found missing from the world's object list and released as
+// by remove(), without its pointer being read: the application may delete a body once it has removed
+// it from the world, or once it has called remove(). (A body deleted while still in the world, or
+// removed, deleted and replaced by a new body at the same address before the next tick, cannot be
+// told from a live one: call remove() first in such code.)
 #pragma once
 
 #include "sinew/system.hpp"
 
 #include <LinearMath/btScalar.h>
+#include <LinearMath/btVector3.h>
 
+#include <cstdint>
 #include <memory>
 #include <unordered_map>
 #include <vector>
 
 class btCollisionObject;
+class btManifoldPoint;
 class btDynamicsWorld;
 class btRigidBody;
 
@@ -52,11 +64,19 @@ class Coupling {
   const System& system() const { return m_system; }
 
   /// The rigid-body particle standing for `body`, created on first use (also between ticks: the next
-  /// tick sets the system up again).
-  /// Static and kinematic bodies become kinematic rigid-body particles (infinite mass).
+  /// tick sets the system up again). The body must be in the coupling's world (an error names it
+  /// otherwise). Static and kinematic bodies become kinematic rigid-body particles (infinite mass).
+  /// A rigid body added to the system directly (System::add_rigid_body) is sinew's own: it stands for
+  /// no Bullet body, meets none of Bullet's objects and keeps its index.
   Index rigid_particle(btRigidBody* body);
-  /// The Bullet body a rigid-body particle stands for.
+  /// The Bullet body a rigid-body particle stands for; null for sinew's own bodies and released ones.
   btRigidBody* body(Index rigid_particle) const { return m_bodies.at(static_cast<std::size_t>(rigid_particle)); }
+  /// Releases `body` from the coupling (call it before deleting a body that is still in the world):
+  /// points hard-bound to it with mass of their own become free particles with that mass, keeping
+  /// their position and velocity; its massless body points are removed, and with them the binding
+  /// springs and soft bindings that end on them. Its rigid-body particle stays, kinematic, at rest
+  /// and unused (indices keep their meaning). The body itself is then a plain Bullet body.
+  void remove(btRigidBody* body);
   /// Hard-binds `particle` to `body` at `local` (in the body's centre-of-mass frame, metres).
   Index bind(Index particle, btRigidBody* body, const Vec3& local);
   /// Hard-binds `particle` to `body` where the particle is now.
@@ -81,7 +101,19 @@ class Coupling {
   static void pre_tick(btDynamicsWorld* world, btScalar dt);
   static void post_tick(btDynamicsWorld* world, btScalar dt);
   /// After Bullet's integration: bound rows move onto the bodies' new frames (they are W of them).
-  void follow_bodies();
+  void follow_bodies(double dt);
+  /// The contacts Bullet resolved this tick also hold the end-of-tick velocities (see coupling.cpp).
+  void hold_contacts_at_tick_end(double dt);
+  /// At the start of a tick: releases coupled bodies that left the world, follows the mass and
+  /// static/kinematic state of the others.
+  void follow_world();
+  /// Slots for rigid bodies added to the system directly (sinew's own: no Bullet body).
+  void add_own_body_slots();
+  /// The rigid-body particle of a body the application changed: kinematic when Bullet's body is
+  /// static or kinematic, else dynamic with Bullet's mass.
+  void follow_mass(Index b);
+  /// What remove() does, without reading the Bullet body (which may be gone).
+  void release(Index b);
   void copy_state_in();
   /// The equality rows of Bullet's joints on coupled bodies, for the step's solves (JointRow).
   void copy_joints_in(double dt);
@@ -94,11 +126,27 @@ class Coupling {
 
   btDynamicsWorld* m_world;
   System m_system;
-  std::vector<btRigidBody*> m_bodies;  // rigid-body particle b stands for m_bodies[b]
+  std::vector<btRigidBody*> m_bodies;  // rigid-body particle b stands for m_bodies[b] (null: own or released)
+  // Per body: Bullet's inverse mass and local inverse inertia when last seen, to notice the
+  // application changing them; and which bodies this tick found in the world (scratch).
+  std::vector<btScalar> m_seen_inverse_mass;
+  std::vector<btVector3> m_seen_inverse_inertia;
+  std::vector<std::uint8_t> m_in_world;
   // Per body: state copied in, the Newmark end-of-step twist and the position twist handed to Bullet.
   Vectors3 m_x_in, m_v_in, m_w_in, m_v_next, m_w_next, m_v_position, m_w_position;
   std::vector<Quat> m_q_in;
   std::vector<JointRow> m_joint_rows;
+  // hold_contacts_at_tick_end's scratch: the islands of coupled dynamic bodies, and per contact point
+  // the two bodies and the normal and friction impulses the passes have applied there.
+  std::vector<int> m_islands;
+  struct EndContact {
+    btManifoldPoint* point;
+    btRigidBody* a;
+    btRigidBody* b;
+    double normal;
+    Vec3 friction;
+  };
+  std::vector<EndContact> m_end_contacts;
   std::vector<btScalar> m_joint_buffer;  // Bullet's btConstraintInfo2 arrays for one joint
   bool m_handed_over = false;
   bool m_use_world_gravity = true;
