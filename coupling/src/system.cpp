@@ -425,6 +425,7 @@ void System::finalize() {
   m_newmark = std::make_unique<Newmark>();
   m_finalized = true;
   m_topology_changed = false;
+  ++m_set_ups;
 }
 
 void System::compute_effective_masses() {

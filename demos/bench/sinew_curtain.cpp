@@ -1,6 +1,7 @@
 #include "sinew_curtain.hpp"
 
 #include "sinew/builders.hpp"
+#include "sinew/bullet/convert.hpp"
 #include "sinew/bullet/coupling.hpp"
 
 #include <btBulletDynamicsCommon.h>
@@ -101,9 +102,21 @@ class SinewCurtain final : public SinewCurtainRun {
 
   AttachmentError attachment() const override { return attachment_error(*m_rings, nodes(), m_pivots); }
 
+  // A ring carrying hard-bound nodes is the merged body of its rigid-body particle (the nodes' mass is
+  // the ring's, at the merged centre of mass, with the merged inertia): its momentum and energy are
+  // that body's. Rings without a particle are measured as Bullet has them.
   double momentum_along_rod() const override {
     const System& s = m_coupling->system();
-    double p = m_rings->momentum_along_rod();
+    const RigidBodyParticles& bodies = s.rigid_bodies();
+    double p = 0.0;
+    for (int k = 0; k < m_rings->count(); ++k) {
+      const Index b = particle_of(k);
+      if (b >= 0) {
+        p += bodies.mass[b] * merged_velocity(k).x();
+      } else if (m_rings->ring(k).getInvMass() > 0) {
+        p += m_rings->ring(k).getLinearVelocity().x() / m_rings->ring(k).getInvMass();
+      }
+    }
     for (Index node : m_cloth.nodes)
       if (s.particles().kind[node] == ParticleKind::free) p += s.particles().mass[node] * s.particles().v(0, node);
     return p;
@@ -113,10 +126,40 @@ class SinewCurtain final : public SinewCurtainRun {
     System& s = m_coupling->system();
     // potential_energy: elastic plus the free particles' gravity; the rings' gravity is Bullet's.
     double e = m_rings->energy(m_spec.gravity) + s.potential_energy();
+    const RigidBodyParticles& bodies = s.rigid_bodies();
+    for (int k = 0; k < m_rings->count(); ++k) {
+      const Index b = particle_of(k);
+      if (b < 0) continue;
+      const btRigidBody& ring = m_rings->ring(k);  // replace Bullet's view of it by the merged body
+      const btVector3 w_body = ring.getWorldTransform().getBasis().transpose() * ring.getAngularVelocity();
+      double spin = 0.0;
+      for (int a = 0; a < 3; ++a) spin += w_body[a] * w_body[a] / ring.getInvInertiaDiagLocal()[a];
+      e -= 0.5 * ring.getLinearVelocity().length2() / ring.getInvMass() + 0.5 * spin +
+           m_spec.gravity * ring.getWorldTransform().getOrigin().y() / ring.getInvMass();
+      const Vec3 w = bullet::to_eigen(ring.getAngularVelocity());
+      e += 0.5 * bodies.mass[b] * merged_velocity(k).squaredNorm() + 0.5 * w.dot(bodies.world_inertia(b) * w) +
+           bodies.mass[b] * m_spec.gravity * m_coupling->centre_of_mass(&ring).y();
+    }
     for (Index node : m_cloth.nodes)
       if (s.particles().kind[node] == ParticleKind::free)
         e += 0.5 * s.particles().mass[node] * s.particles().v.col(node).squaredNorm();
     return e;
+  }
+
+  /// The velocity of ring k's merged centre of mass, from Bullet's state (the particle's is the last
+  /// tick's: the benchmark sets velocities before the first).
+  Vec3 merged_velocity(int k) const {
+    const btRigidBody& ring = m_rings->ring(k);
+    const btVector3 lever = bullet::to_bullet(m_coupling->centre_of_mass(&ring)) - ring.getCenterOfMassPosition();
+    return bullet::to_eigen(ring.getVelocityInLocalPoint(lever));
+  }
+
+  /// The dynamic rigid-body particle standing for ring k, or -1.
+  Index particle_of(int k) const {
+    const RigidBodyParticles& bodies = m_coupling->system().rigid_bodies();
+    for (Index b = 0; b < bodies.size(); ++b)
+      if (m_coupling->body(b) == &m_rings->ring(k) && !bodies.kinematic[b]) return b;
+    return -1;
   }
 
   double binding_spring_energy() const override {

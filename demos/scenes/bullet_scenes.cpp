@@ -107,9 +107,10 @@ double BulletScene::hard_binding_drift() {
   const HardBindings& hard = s.hard_bindings();
   for (Index k = 0; k < hard.rigid_count(); ++k) {
     const btRigidBody* body = m_coupling->body(hard.rigid_body(k));
+    if (!body) continue;  // sinew's own body, or one released: max_hard_binding_drift covers it
     // Kinematic parents follow their own swept pose inside a frame; they meet Bullet's at its end.
     const btTransform& frame = body->getCenterOfMassTransform();
-    const Vec3 expected = to_eigen(frame * to_bullet(hard.rigid_offset_body(k)));
+    const Vec3 expected = to_eigen(frame * to_bullet(m_coupling->body_offset(k)));
     drift = std::max(drift, (s.particles().x.col(hard.rigid_particle(k)) - expected).norm());
   }
   return std::max(drift, s.max_hard_binding_drift());

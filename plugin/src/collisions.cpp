@@ -62,19 +62,6 @@ struct ClosestTriangle : btTriangleCallback {
   }
 };
 
-// The velocity of a particle at v that stops approaching a surface moving at v_body along the unit
-// normal n, with Coulomb friction taking up to mu |dv_n| of the tangential slip; v itself when it does
-// not approach.
-Vec3 stop_approach(const Vec3& v, const Vec3& v_body, const Vec3& n, double mu) {
-  const Vec3 v_rel = v - v_body;
-  const double vn = n.dot(v_rel);
-  if (!(vn < 0.0)) return v;
-  Vec3 v_t = v_rel - vn * n;
-  const double slip = v_t.norm();
-  if (slip > 0.0) v_t *= std::max(0.0, 1.0 - mu * (-vn) / slip);
-  return v_body + v_t;
-}
-
 }  // namespace
 
 bool signed_distance(const btCollisionShape* shape, const btTransform& frame, const Vec3& x, double reach, double& phi,
@@ -151,6 +138,16 @@ bool signed_distance(const btCollisionShape* shape, const btTransform& frame, co
     return true;
   }
   return false;
+}
+
+Vec3 stop_approach(const Vec3& v, const Vec3& v_body, const Vec3& n, double mu) {
+  const Vec3 v_rel = v - v_body;
+  const double vn = n.dot(v_rel);
+  if (!(vn < 0.0)) return v;
+  Vec3 v_t = v_rel - vn * n;
+  const double slip = v_t.norm();
+  if (slip > 0.0) v_t *= std::max(0.0, 1.0 - mu * (-vn) / slip);
+  return v_body + v_t;
 }
 
 BulletCollisions::BulletCollisions(btCollisionWorld* world, const CollisionSettings& settings,
@@ -250,7 +247,10 @@ void BulletCollisions::process(CollisionContext& c) {
     if (rigid) {
       arm = to_bullet(x.col(i)) - rigid->getCenterOfMassPosition();
       if (particle_body >= 0) {
-        v_body = c.bodies->v.col(particle_body) + Vec3(c.bodies->w.col(particle_body)).cross(to_eigen(arm));
+        // The particle's twist is its centre's (the merged one when bound mass is carried), at the
+        // predicted frame, from which apply_body_impulse takes its lever too.
+        const Vec3 r = x.col(i) - c.bodies->x.col(particle_body);
+        v_body = c.bodies->v.col(particle_body) + Vec3(c.bodies->w.col(particle_body)).cross(r);
       } else {
         v_body = to_eigen(rigid->getVelocityInLocalPoint(arm));
       }
@@ -284,32 +284,6 @@ void BulletCollisions::push_pending(btRigidBody* body, const btVector3& arm, con
     pending = m_pending.insert(m_pending.end(), {body, btVector3(0, 0, 0), btVector3(0, 0, 0)});
   pending->impulse -= to_bullet(j);
   pending->torque_impulse -= arm.cross(to_bullet(j));
-}
-
-// A particle on a static surface is held there by step 4 (a velocity constraint), so it ends the step
-// no faster towards the surface than the surface. Against a dynamic body step 4 has no such
-// constraint, and whatever pulls the particle into the body (a binding spring whose end is on the
-// body's surface, the cloth's weight on a falling body) gives it an end-of-step velocity into the
-// body that only the next step's projection takes away: a node tied to the top of the hello sphere by
-// a 1e4 N/m spring read 13 m/s while it moved at 0.15 m/s, and the spring's force, -k dx - c dv, read
-// 2 N where k dx is 100 N. So the contact holds at the end of the tick too, against the body's
-// velocity at the end of the tick (Bullet's, after its own contacts): the approach is removed as in
-// step 3, with its friction, at the particle's end position, the body taking the opposite impulse, in
-// the order step 3 found the contacts. One pass; the coupling alternates it with the bodies' own
-// contacts (Coupling::hold_contacts_at_tick_end), since each moves the other.
-void BulletCollisions::hold_dynamic_contacts(Particles& particles) {
-  for (const DynamicContact& contact : m_dynamic_contacts) {
-    const Index i = contact.particle;
-    if (!is_dynamic(particles.kind[i])) continue;
-    const Vec3 x = particles.x.col(i);
-    const btVector3 arm = to_bullet(x) - contact.body->getCenterOfMassPosition();
-    const Vec3 v_body = to_eigen(contact.body->getVelocityInLocalPoint(arm));
-    const Vec3 v_old = particles.v.col(i);
-    const Vec3 v_new = stop_approach(v_old, v_body, contact.normal, m_settings.friction);
-    if (v_new == v_old) continue;
-    particles.v.col(i) = v_new;
-    contact.body->applyImpulse(to_bullet(-particles.mass[i] * (v_new - v_old)), arm);
-  }
 }
 
 void BulletCollisions::apply_pending_impulses() {

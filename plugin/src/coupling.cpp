@@ -118,7 +118,6 @@ JointRow joint_row(const btTypedConstraint::btConstraintInfo2& info2, int r, Ind
 Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m_world(world) {
   if (!world) fail("bullet coupling: world is null");
   SystemSettings system = settings.system;
-  system.absorb_bound_mass_into_rigid_bodies = false;
   if (settings.use_world_gravity) system.gravity = to_eigen(world->getGravity());
   m_use_world_gravity = settings.use_world_gravity;
   m_system = System(system);
@@ -146,6 +145,11 @@ Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m
 }
 
 Coupling::~Coupling() {
+  // Bodies still in the world get their own mass properties back (removed ones may be gone).
+  const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
+  for (int o = 0; o < objects.size(); ++o)
+    if (const auto found = m_rigid_particles.find(objects[o]); found != m_rigid_particles.end())
+      restore_own_mass(found->second);
   m_world->setInternalTickCallback(m_app_pre_tick, m_world->getWorldUserInfo(), true);
   m_world->setInternalTickCallback(m_app_post_tick, m_world->getWorldUserInfo(), false);
   std::lock_guard<std::mutex> lock(g_registry_mutex);
@@ -205,9 +209,13 @@ Index Coupling::rigid_particle(btRigidBody* body) {
   }
   s.gravity = false;  // gravity comes with Bullet's total force on the body, copied in every tick
   const Index b = m_system.add_rigid_body(s);
-  m_bodies.push_back(body);
-  m_seen_inverse_mass.push_back(body->getInvMass());
-  m_seen_inverse_inertia.push_back(body->getInvInertiaDiagLocal());
+  add_own_body_slots();
+  const auto i = static_cast<std::size_t>(b);
+  m_bodies[i] = body;
+  m_seen_inverse_mass[i] = body->getInvMass();
+  m_seen_inverse_inertia[i] = body->getInvInertiaDiagLocal();
+  m_own_mass[i] = s.kinematic ? btScalar(0) : btScalar(s.mass);
+  m_own_inertia[i] = s.kinematic ? btVector3(0, 0, 0) : to_bullet(s.inertia);
   m_rigid_particles.emplace(body, b);
   return b;
 }
@@ -218,13 +226,142 @@ void Coupling::add_own_body_slots() {
   m_bodies.resize(count, nullptr);
   m_seen_inverse_mass.resize(count, btScalar(0));
   m_seen_inverse_inertia.resize(count, btVector3(0, 0, 0));
+  m_own_mass.resize(count, btScalar(0));
+  m_own_inertia.resize(count, btVector3(0, 0, 0));
+  m_mass_handed.resize(count, 0);
+  const auto old = m_merged_offset.cols();
+  m_merged_offset.conservativeResize(3, static_cast<Index>(count));
+  m_merged_offset.rightCols(static_cast<Index>(count) - old).setZero();
+  m_merged_turn.resize(count, Quat::Identity());
 }
 
 void Coupling::remove(btRigidBody* body) {
   const auto found = body ? m_rigid_particles.find(body) : m_rigid_particles.end();
   if (found == m_rigid_particles.end())
     fail("Coupling::remove: rigid body ", static_cast<const void*>(body), " is not coupled");
+  restore_own_mass(found->second);
   release(found->second);
+}
+
+Vec3 Coupling::centre_of_mass(const btRigidBody* body) const {
+  const btTransform& frame = body->getCenterOfMassTransform();
+  const auto found = m_rigid_particles.find(body);
+  if (found == m_rigid_particles.end()) return to_eigen(frame.getOrigin());
+  return to_eigen(frame * to_bullet(m_merged_offset.col(found->second)));
+}
+
+Vec3 Coupling::body_offset(Index k) const {
+  const HardBindings& hard = m_system.hard_bindings();
+  const Index b = hard.rigid_body(k);
+  return Vec3(m_merged_offset.col(b)) + m_merged_turn[static_cast<std::size_t>(b)] * hard.rigid_offset_body(k);
+}
+
+Vec3 Coupling::merged_offset(Index b, const Vec3& local) const {
+  return m_merged_turn[static_cast<std::size_t>(b)].conjugate() * (local - m_merged_offset.col(b));
+}
+
+void Coupling::set_particle_mass(Index b, bool kinematic, double mass, const Vec3& inertia) {
+  m_system.set_rigid_body_mass(b, kinematic, mass, inertia);
+  m_merged_offset.setZero();
+  std::fill(m_merged_turn.begin(), m_merged_turn.end(), Quat::Identity());
+}
+
+void Coupling::restore_own_mass(Index b) {
+  const auto i = static_cast<std::size_t>(b);
+  btRigidBody* body = m_bodies[i];
+  if (!body || !m_mass_handed[i]) return;
+  body->setMassProps(m_own_mass[i], m_own_inertia[i]);
+  body->updateInertiaTensor();
+  m_seen_inverse_mass[i] = body->getInvMass();
+  m_seen_inverse_inertia[i] = body->getInvInertiaDiagLocal();
+  m_mass_handed[i] = 0;
+}
+
+// The merged body's mass, and its inertia carried to Bullet's centre of mass (parallel axes) in
+// Bullet's frame of the body, of which Bullet keeps the diagonal: the merged inertia about Bullet's
+// centre, I = R_rel I' R_rel^T + m' (|d|^2 1 - d d^T), has off-diagonal terms Bullet cannot hold.
+void Coupling::hand_mass_to_bullet(Index b) {
+  const auto i = static_cast<std::size_t>(b);
+  btRigidBody* body = m_bodies[i];
+  const RigidBodyParticles& bodies = m_system.rigid_bodies();
+  if (!body || bodies.kinematic[b]) return;
+  if (bodies.mass[b] == static_cast<double>(m_own_mass[i])) {
+    restore_own_mass(b);
+    return;
+  }
+  const Mat3 turn = m_merged_turn[i].toRotationMatrix();
+  const Vec3 d = m_merged_offset.col(b);
+  const double m = bodies.mass[b];
+  const Mat3 inertia = turn * bodies.inertia.col(b).asDiagonal() * turn.transpose() +
+                       m * (d.squaredNorm() * Mat3::Identity() - d * d.transpose());
+  body->setMassProps(btScalar(m), to_bullet(inertia.diagonal()));
+  body->updateInertiaTensor();
+  m_seen_inverse_mass[i] = body->getInvMass();
+  m_seen_inverse_inertia[i] = body->getInvInertiaDiagLocal();
+  m_mass_handed[i] = 1;
+}
+
+// Where the particles' (merged) frames are in Bullet's frames of the bodies, and Bullet told the
+// merged masses.
+void Coupling::adopt_set_up() {
+  m_set_ups_seen = m_system.set_ups();
+  add_own_body_slots();
+  const RigidBodyParticles& bodies = m_system.rigid_bodies();
+  for (std::size_t i = 0; i < m_bodies.size(); ++i) {
+    const auto b = static_cast<Index>(i);
+    if (!m_bodies[i] || bodies.kinematic[b]) continue;
+    if (bodies.mass[b] == static_cast<double>(m_own_mass[i])) {
+      m_merged_offset.col(b).setZero();
+      m_merged_turn[i] = Quat::Identity();
+    } else {
+      const btTransform& frame = m_bodies[i]->getCenterOfMassTransform();
+      const Quat q = to_eigen(frame.getRotation());
+      m_merged_offset.col(b) = q.conjugate() * (bodies.x.col(b) - to_eigen(frame.getOrigin()));
+      m_merged_turn[i] = (q.conjugate() * bodies.q[b]).normalized();
+    }
+    hand_mass_to_bullet(b);
+  }
+}
+
+// Set-up merges the mass of points hard-bound to a body into it (RigidBindings::absorb_masses: mass,
+// centre, inertia, principal frame) and puts the points on the body with its twist, which would drop
+// the momentum m (v - v_point) a point brought: that goes into the body as an impulse at the point, so
+// the system's linear and angular momentum are what they were. Then Bullet is told.
+void Coupling::set_up() {
+  const Particles& particles = m_system.particles();
+  m_kind_before = particles.kind;
+  m_v_before = particles.v;
+  m_system.finalize();
+  adopt_set_up();
+  // The frames again from Bullet's (equal to set-up's to round-off), and the points on them.
+  copy_state_in();
+  m_system.clamp_bound_rows();
+  const RigidBindings& rigid = m_system.hard_bindings().rigid();
+  const VectorXd& mass = m_system.input_mass();
+  bool pushed = false;
+  for (Index k = 0; k < rigid.size(); ++k) {
+    const Index p = rigid.particle(k);
+    const bool new_point = p >= static_cast<Index>(m_kind_before.size()) ||
+                           m_kind_before[static_cast<std::size_t>(p)] != ParticleKind::hard_bound;
+    if (!new_point || !(mass[p] > 0.0) || p >= m_v_before.cols()) continue;
+    const Vec3 j = mass[p] * (Vec3(m_v_before.col(p)) - Vec3(m_system.particles().v.col(p)));
+    if (j.isZero(0.0)) continue;
+    m_system.apply_impulse(p, j);
+    pushed = true;
+  }
+  if (!pushed) return;
+  // Bullet's velocities from the particles' twists (the velocity of Bullet's centre: v' + w x (c - x')).
+  const RigidBodyParticles& bodies = m_system.rigid_bodies();
+  for (std::size_t i = 0; i < m_bodies.size(); ++i) {
+    const auto b = static_cast<Index>(i);
+    if (!m_bodies[i] || bodies.kinematic[b]) continue;
+    const Vec3 w = bodies.w.col(b);
+    const Vec3 e = m_q_in[i] * Vec3(m_merged_offset.col(b));
+    m_bodies[i]->setLinearVelocity(to_bullet(Vec3(bodies.v.col(b)) - w.cross(e)));
+    m_bodies[i]->setAngularVelocity(to_bullet(w));
+  }
+  copy_state_in();
+  m_system.clamp_bound_rows();
 }
 
 void Coupling::release(Index b) {
@@ -256,7 +393,8 @@ void Coupling::release(Index b) {
     }
   }
   // The particle stays (indices keep their meaning) as a kinematic body at rest that nothing uses.
-  m_system.set_rigid_body_mass(b, true);
+  set_particle_mass(b, true);
+  m_mass_handed[static_cast<std::size_t>(b)] = 0;
   RigidBodyParticles& bodies = m_system.rigid_bodies();
   bodies.v.col(b).setZero();
   bodies.w.col(b).setZero();
@@ -290,33 +428,39 @@ void Coupling::follow_mass(Index b) {
   const btRigidBody* body = m_bodies[i];
   RigidBodyParticles& bodies = m_system.rigid_bodies();
   const bool prescribed = body->isStaticOrKinematicObject() || body->getInvMass() == btScalar(0);
+  // Mass properties other than the ones the coupling handed over are the application's: the body's own.
   const bool changed =
       body->getInvMass() != m_seen_inverse_mass[i] || body->getInvInertiaDiagLocal() != m_seen_inverse_inertia[i];
-  if (prescribed == static_cast<bool>(bodies.kinematic[b]) && !changed) return;
-  m_seen_inverse_mass[i] = body->getInvMass();
-  m_seen_inverse_inertia[i] = body->getInvInertiaDiagLocal();
+  if (changed) {
+    m_seen_inverse_mass[i] = body->getInvMass();
+    m_seen_inverse_inertia[i] = body->getInvInertiaDiagLocal();
+    m_mass_handed[i] = 0;
+    if (body->getInvMass() > btScalar(0)) {
+      const btVector3 inverse = body->getInvInertiaDiagLocal();
+      for (int d = 0; d < 3; ++d)
+        if (!(inverse[d] > btScalar(0)))
+          fail("bullet coupling: rigid body ", b, " has a locked rotation axis (inverse inertia ", d,
+               " is 0), which rigid-body particles do not support yet");
+      m_own_mass[i] = btScalar(1) / body->getInvMass();
+      m_own_inertia[i] = btVector3(btScalar(1) / inverse.x(), btScalar(1) / inverse.y(), btScalar(1) / inverse.z());
+    }
+  }
   if (prescribed) {
     if (bodies.kinematic[b]) return;
-    m_system.set_rigid_body_mass(b, true);
+    set_particle_mass(b, true);
     // From here it moves as Bullet moves it (copy_state_in): from its pose now.
     const btTransform& frame = body->getCenterOfMassTransform();
     bodies.x.col(b) = to_eigen(frame.getOrigin());
     bodies.q[b] = to_eigen(frame.getRotation());
     return;
   }
-  const btVector3 inverse = body->getInvInertiaDiagLocal();
-  Vec3 inertia;
-  for (int d = 0; d < 3; ++d) {
-    if (!(inverse[d] > btScalar(0)))
-      fail("bullet coupling: rigid body ", b, " has a locked rotation axis (inverse inertia ", d,
-           " is 0), which rigid-body particles do not support yet");
-    inertia[d] = 1.0 / static_cast<double>(inverse[d]);
-  }
-  m_system.set_rigid_body_mass(b, false, 1.0 / static_cast<double>(body->getInvMass()), inertia);
+  if (!bodies.kinematic[b] && !changed) return;
+  set_particle_mass(b, false, static_cast<double>(m_own_mass[i]), to_eigen(m_own_inertia[i]));
 }
 
 Index Coupling::bind(Index particle, btRigidBody* body, const Vec3& local) {
-  return m_system.bind_rigid(particle, rigid_particle(body), local);
+  const Index b = rigid_particle(body);
+  return m_system.bind_rigid(particle, b, merged_offset(b, local));
 }
 
 Index Coupling::bind_here(Index particle, btRigidBody* body) {
@@ -326,10 +470,11 @@ Index Coupling::bind_here(Index particle, btRigidBody* body) {
 Index Coupling::add_body_point(btRigidBody* body, const Vec3& local) {
   const Index b = rigid_particle(body);
   const RigidBodyParticles& bodies = m_system.rigid_bodies();
-  const Vec3 r = bodies.q[b] * local;
+  const Vec3 r0 = merged_offset(b, local);
+  const Vec3 r = bodies.q[b] * r0;
   const Vec3 v = bodies.v.col(b) + bodies.w.col(b).cross(r);
   const Index point = m_system.add_particle(bodies.x.col(b) + r, v, 0.0);
-  m_system.bind_rigid(point, b, local);
+  m_system.bind_rigid(point, b, r0);
   return point;
 }
 
@@ -355,7 +500,11 @@ StepStats Coupling::tick(double dt) {
   // The world and its bodies as they are now: an application may change them between ticks.
   if (m_use_world_gravity) m_system.set_gravity(to_eigen(m_world->getGravity()));
   follow_world();
+  // A set-up the application ran itself (System::finalize) merged masses into the particles: their
+  // frames, where Bullet's bodies still are, say where the merged frames sit.
+  if (m_system.set_ups() != m_set_ups_seen) adopt_set_up();
   copy_state_in();
+  if (m_system.needs_set_up()) set_up();
   copy_joints_in(dt);
   // A tick that throws leaves the state of its start: the deformables and rigid-body particles as
   // they were, no collision impulse handed over, and Bullet's gathered forces cleared (the exception
@@ -395,23 +544,38 @@ void Coupling::copy_state_in() {
     // call, exactly where Bullet has the body. A static body stays where it is put, whatever velocity it
     // was left with when it was made static.
     const bool is_static = bodies.kinematic[b] && !body->isKinematicObject();
+    const btTransform& frame = body->getCenterOfMassTransform();
+    const Vec3 v = is_static ? Vec3::Zero() : to_eigen(body->getLinearVelocity());
+    const Vec3 w = is_static ? Vec3::Zero() : to_eigen(body->getAngularVelocity());
     if (!bodies.kinematic[b] || is_static) {
-      const btTransform& frame = body->getCenterOfMassTransform();
-      bodies.x.col(b) = to_eigen(frame.getOrigin());
-      bodies.q[b] = to_eigen(frame.getRotation());
+      m_x_in.col(b) = to_eigen(frame.getOrigin());
+      m_q_in[static_cast<std::size_t>(b)] = to_eigen(frame.getRotation());
+    } else {
+      m_x_in.col(b) = bodies.x.col(b);
+      m_q_in[static_cast<std::size_t>(b)] = bodies.q[b];
     }
-    bodies.v.col(b) = is_static ? Vec3::Zero() : to_eigen(body->getLinearVelocity());
-    bodies.w.col(b) = is_static ? Vec3::Zero() : to_eigen(body->getAngularVelocity());
+    m_v_in.col(b) = v;
+    m_w_in.col(b) = w;
+    // The merged body (x' = c + R d, q' = q q_rel, v' = v + w x R d) stands on Bullet's frame.
+    const Vec3 e = m_q_in[static_cast<std::size_t>(b)] * Vec3(m_merged_offset.col(b));
+    if (!bodies.kinematic[b] || is_static) {
+      bodies.x.col(b) = m_x_in.col(b) + e;
+      bodies.q[b] = m_q_in[static_cast<std::size_t>(b)] * m_merged_turn[static_cast<std::size_t>(b)];
+    }
+    bodies.v.col(b) = v + w.cross(e);
+    bodies.w.col(b) = w;
     // Gravity and the application's forces, which Bullet gathered before this tick: the step carries
-    // them, so the deformables feel the body accelerate as it will.
+    // them, so the deformables feel the body accelerate as it will. Bullet applies them at its centre
+    // of mass; gravity, Bullet's body's weight (merged mass times g), acts at the merged centre, the
+    // rest at Bullet's, a lever -e from the merged centre.
     if (!bodies.kinematic[b]) {
-      bodies.force.col(b) = to_eigen(body->getTotalForce());
-      bodies.torque.col(b) = to_eigen(body->getTotalTorque());
+      const Vec3 force = to_eigen(body->getTotalForce());
+      const Vec3 weight = body->isActive()
+                              ? Vec3(to_eigen(body->getGravity()) / static_cast<double>(body->getInvMass()))
+                              : Vec3::Zero();
+      bodies.force.col(b) = force;
+      bodies.torque.col(b) = to_eigen(body->getTotalTorque()) - e.cross(force - weight);
     }
-    m_x_in.col(b) = bodies.x.col(b);
-    m_q_in[b] = bodies.q[b];
-    m_v_in.col(b) = bodies.v.col(b);
-    m_w_in.col(b) = bodies.w.col(b);
   }
 }
 
@@ -421,11 +585,15 @@ void Coupling::hand_over_position_velocity(double dt) {
     const auto i = static_cast<Index>(b);
     if (!m_bodies[b] || bodies.kinematic[i]) continue;
     btRigidBody* body = m_bodies[b];
-    m_v_next.col(i) = bodies.v.col(i);
-    m_w_next.col(i) = bodies.w.col(i);
+    // Bullet's frame on the merged body as the step left it: q = q' q_rel^-1, c = x' - R d.
+    const Quat q = bodies.q[i] * m_merged_turn[b].conjugate();
+    const Vec3 e = q * Vec3(m_merged_offset.col(i));
+    const Vec3 w = bodies.w.col(i);
+    m_v_next.col(i) = Vec3(bodies.v.col(i)) - w.cross(e);
+    m_w_next.col(i) = w;
     // The motion of the step's frame over dt, as a twist Bullet's integrator reproduces.
-    m_v_position.col(i) = (bodies.x.col(i) - m_x_in.col(i)) / dt;
-    const Eigen::AngleAxisd turn(bodies.q[i] * m_q_in[b].conjugate());
+    m_v_position.col(i) = (Vec3(bodies.x.col(i)) - e - Vec3(m_x_in.col(i))) / dt;
+    const Eigen::AngleAxisd turn(q * m_q_in[b].conjugate());
     m_w_position.col(i) = turn.angle() * turn.axis() / dt;
     // Collision impulses on the body are in the step's twist already (CollisionContext::apply_body_impulse).
     hand_over(body, m_v_position.col(i), m_w_position.col(i), dt);
@@ -469,7 +637,16 @@ void Coupling::copy_joints_in(double dt) {
         (Vec6() << to_eigen(body_b.getLinearVelocity()), to_eigen(body_b.getAngularVelocity())).finished();
     for (int r = 0; r < rows; ++r) {
       if (!is_equality_row(info2, r, solver.m_globalCfm)) continue;
-      const JointRow row = joint_row(info2, r, a, b, twist_a, twist_b);
+      JointRow row = joint_row(info2, r, a, b, twist_a, twist_b);
+      // Bullet's rows act on the twist of its centre c; the step's twist is the merged centre's x':
+      // J_v . v_c + J_w . w = J_v . v' + (J_w + (c - x') x J_v) . w.
+      auto to_merged = [&](Index body, Vec6& j) {
+        if (body < 0) return;
+        const Vec3 lever = Vec3(m_x_in.col(body)) - Vec3(bodies.x.col(body));
+        j.tail<3>() += lever.cross(Vec3(j.head<3>()));
+      };
+      to_merged(row.body_a, row.j_a);
+      to_merged(row.body_b, row.j_b);
       if (row.j_a.isZero(0.0) && row.j_b.isZero(0.0)) continue;
       m_joint_rows.push_back(row);
     }
@@ -516,10 +693,65 @@ void Coupling::hand_over(btRigidBody* body, const Vec3& v, const Vec3& w, double
 // end-of-tick velocities too, as sinew's step-4 constraints hold particles on static surfaces: a few
 // Gauss-Seidel passes over those points, in the dispatcher's order, remove any approach beyond what
 // Bullet itself allows (a point still apart by d may close at d / dt) by an equal and opposite impulse
-// on the two bodies (Bullet's masses, applyImpulse), and tangential slip up to the point's friction
-// times that impulse. A contact that separates at the end of the tick is left alone. The particles
-// the step found against dynamic bodies are held the same way (BulletCollisions::hold_dynamic_contacts),
-// in the same passes.
+// on the two bodies, and tangential slip up to the point's friction times that impulse. A contact that
+// separates at the end of the tick is left alone.
+//
+// Particles against dynamic bodies are held in the same passes. A particle on a static surface is held
+// by step 4 (a velocity constraint); against a dynamic body step 4 has none, and whatever pulls the
+// particle into the body (a binding spring whose end is on the body's surface) gives it an end-of-step
+// velocity into the body that only the next step's projection took away: the node tied to the top of
+// the hello sphere by a 1e4 N/m spring read 13 m/s while it moved at 0.15 m/s, and the spring's force,
+// -k dx - c dv, read 2 N where k dx is 100 N. Each is held as step 3 holds it (its approach removed with
+// step 3's friction), against the body's final velocity, the body taking the opposite impulse.
+//
+// A coupled body takes its impulses as the merged body it is (mass, inertia and centre of its particle),
+// so that momentum is kept exactly; other bodies as Bullet has them.
+Coupling::BodyView Coupling::body_view(btRigidBody* body, bool at_tick_start) const {
+  BodyView view;
+  view.body = body;
+  const RigidBodyParticles& bodies = m_system.rigid_bodies();
+  const auto found = m_rigid_particles.find(body);
+  view.particle = found == m_rigid_particles.end() || bodies.kinematic[found->second] ? -1 : found->second;
+  const btTransform& frame = body->getCenterOfMassTransform();
+  if (view.particle < 0) {
+    view.centre = to_eigen(frame.getOrigin());
+    view.inverse_mass = static_cast<double>(body->getInvMass());
+    const btMatrix3x3& i = body->getInvInertiaTensorWorld();
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) view.inverse_inertia(r, c) = static_cast<double>(i[r][c]);
+  } else {
+    const Index b = view.particle;
+    view.offset = to_eigen(frame.getRotation()) * Vec3(m_merged_offset.col(b));
+    // The contact points Bullet found are where its collision detection saw the bodies, at the tick's
+    // start: levers from the centre there, as Bullet's solver took them (from the centre the body has
+    // now, a sphere rolling at 0.3 m/s read a sinking of w dt |v| ~ 3e-4 m/s).
+    view.centre = at_tick_start
+                      ? Vec3(Vec3(m_x_in.col(b)) + m_q_in[static_cast<std::size_t>(b)] * Vec3(m_merged_offset.col(b)))
+                      : Vec3(to_eigen(frame.getOrigin()) + view.offset);
+    view.inverse_mass = 1.0 / bodies.mass[b];
+    view.inverse_inertia = bodies.world_inverse_inertia(b);
+  }
+  return view;
+}
+
+Vec3 Coupling::BodyView::velocity(const Vec3& lever) const {
+  const Vec3 w = to_eigen(body->getAngularVelocity());
+  return to_eigen(body->getLinearVelocity()) + w.cross(offset + lever);
+}
+
+double Coupling::BodyView::inverse_mass_along(const Vec3& lever, const Vec3& u) const {
+  const Vec3 t = lever.cross(u);
+  return inverse_mass + t.dot(inverse_inertia * t);
+}
+
+void Coupling::BodyView::push(const Vec3& lever, const Vec3& j) const {
+  const Vec3 w = to_eigen(body->getAngularVelocity()) + inverse_inertia * lever.cross(j);
+  // The centre's velocity changes by j / m; Bullet's centre, offset from it, moves with it and w.
+  const Vec3 v_centre = velocity(Vec3::Zero()) + inverse_mass * j;
+  body->setLinearVelocity(to_bullet(v_centre - w.cross(offset)));
+  body->setAngularVelocity(to_bullet(w));
+}
+
 void Coupling::hold_contacts_at_tick_end(double dt) {
   const RigidBodyParticles& bodies = m_system.rigid_bodies();
   m_islands.clear();
@@ -541,39 +773,19 @@ void Coupling::hold_contacts_at_tick_end(double dt) {
       if (point.getAppliedImpulse() > btScalar(0)) m_end_contacts.push_back({&point, a, b, 0.0, Vec3::Zero()});
     }
   }
-  // The contact points are where the tick's collision detection found them, with the centres of mass
-  // there: a coupled body's lever is taken from its centre at the tick's start, as Bullet's solver
-  // took it (from the centre the body has now, a sphere rolling at 0.3 m/s would read a sinking of
-  // w dt |v| ~ 3e-4 m/s); other bodies use the centre they have now.
-  auto centre_seen = [&](const btRigidBody* body) {
-    const auto found = m_rigid_particles.find(body);
-    if (found == m_rigid_particles.end() || bodies.kinematic[found->second]) return body->getCenterOfMassPosition();
-    return to_bullet(m_x_in.col(found->second));
-  };
-  // The particles' contacts with dynamic bodies alternate with the bodies' own (each moves the other:
-  // a node on a sphere that the ground stops follows it down no further).
-  constexpr int kPasses = 8;
-  const int passes = m_end_contacts.empty() ? 1 : kPasses;
+  const int passes = m_end_contacts.empty() ? 1 : 8;
   for (int pass = 0; pass < passes; ++pass) {
     for (EndContact& c : m_end_contacts) {
       const btManifoldPoint& point = *c.point;
+      const BodyView a = body_view(c.a, true), b = body_view(c.b, true);
       const Vec3 n = to_eigen(point.m_normalWorldOnB);  // from b towards a
-      const btVector3 ra = point.getPositionWorldOnA() - centre_seen(c.a);
-      const btVector3 rb = point.getPositionWorldOnB() - centre_seen(c.b);
-      // Inverse effective mass of the two bodies at the point along a unit direction d.
-      auto inverse_mass = [&](const Vec3& d) {
-        const btVector3 u = to_bullet(d);
-        const btVector3 ta = ra.cross(u), tb = rb.cross(u);
-        return static_cast<double>(c.a->getInvMass() + c.b->getInvMass() +
-                                   ta.dot(c.a->getInvInertiaTensorWorld() * ta) +
-                                   tb.dot(c.b->getInvInertiaTensorWorld() * tb));
-      };
-      auto relative_velocity = [&] {
-        return to_eigen(c.a->getVelocityInLocalPoint(ra) - c.b->getVelocityInLocalPoint(rb));
-      };
+      const Vec3 ra = to_eigen(point.getPositionWorldOnA()) - a.centre;
+      const Vec3 rb = to_eigen(point.getPositionWorldOnB()) - b.centre;
+      auto inverse_mass = [&](const Vec3& u) { return a.inverse_mass_along(ra, u) + b.inverse_mass_along(rb, u); };
+      auto relative_velocity = [&] { return Vec3(a.velocity(ra) - b.velocity(rb)); };
       auto push = [&](const Vec3& j) {
-        c.a->applyImpulse(to_bullet(j), ra);
-        c.b->applyImpulse(to_bullet(-j), rb);
+        a.push(ra, j);
+        b.push(rb, -j);
       };
       // Normal: the accumulated impulse stays a push (>= 0).
       const double allowed = -std::max(0.0, static_cast<double>(point.getDistance())) / dt;
@@ -596,7 +808,19 @@ void Coupling::hold_contacts_at_tick_end(double dt) {
       c.friction = friction;
       push(jt);
     }
-    if (m_collisions) m_collisions->hold_dynamic_contacts(m_system.particles());
+    if (!m_collisions) continue;
+    Particles& particles = m_system.particles();
+    for (const BulletCollisions::DynamicContact& contact : m_collisions->dynamic_contacts()) {
+      const Index i = contact.particle;
+      if (!is_dynamic(particles.kind[i])) continue;
+      const BodyView body = body_view(contact.body, false);
+      const Vec3 lever = Vec3(particles.x.col(i)) - body.centre;
+      const Vec3 v_old = particles.v.col(i);
+      const Vec3 v_new = stop_approach(v_old, body.velocity(lever), contact.normal, m_collisions->friction());
+      if (v_new == v_old) continue;
+      particles.v.col(i) = v_new;
+      body.push(lever, -particles.mass[i] * (v_new - v_old));
+    }
   }
 }
 

@@ -246,6 +246,10 @@ class System {
   /// Called by the first step; idempotent. Topology changes afterwards throw.
   void finalize();
   bool finalized() const { return m_finalized; }
+  /// True when the model changed since the last set-up (the next step sets it up again first).
+  bool needs_set_up() const { return !m_finalized || m_topology_changed; }
+  /// How many set-ups finalize() has run (a caller keeping state derived from one can tell it is stale).
+  std::uint64_t set_ups() const { return m_set_ups; }
 
   // ---- time stepping -------------------------------------------------------------------------
   /// One Newmark step of size dt.
@@ -319,7 +323,8 @@ class System {
   VectorXd m_effective_mass;              // per row, +inf for kinematic, m_e for bound rows
   std::vector<double> m_force_stable_dt;  // Force::stable_dt per force at these masses (stable_dt())
   bool m_finalized = false;
-  bool m_topology_changed = false;         // the topology changed since set-up: redo it before the next step
+  bool m_topology_changed = false;  // the topology changed since set-up: redo it before the next step
+  std::uint64_t m_set_ups = 0;
   std::vector<ParticleKind> m_input_kind;  // free or kinematic, as created
   double m_time = 0.0;
   std::unique_ptr<Newmark> m_newmark;

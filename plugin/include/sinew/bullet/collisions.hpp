@@ -20,6 +20,11 @@ namespace sinew::bullet {
 bool signed_distance(const btCollisionShape* shape, const btTransform& frame, const Vec3& x, double reach, double& phi,
                      Vec3& normal);
 
+/// The velocity of a particle at v that stops approaching a surface moving at v_body along the unit
+/// normal n, with Coulomb friction taking up to mu |dv_n| of the tangential slip; v itself when it does
+/// not approach.
+Vec3 stop_approach(const Vec3& v, const Vec3& v_body, const Vec3& n, double mu);
+
 struct CollisionSettings {
   double thickness = 0.01;  ///< particles keep this distance from every surface [m]
   double friction = 0.3;    ///< Coulomb coefficient between cloth and rigid surfaces
@@ -41,10 +46,15 @@ class BulletCollisions final : public CollisionSource {
                    const std::unordered_map<const btCollisionObject*, Index>* rigid_particles);
   std::string_view name() const override { return "bullet shapes"; }
   void process(CollisionContext& context) override;
-  /// At the end of a tick: one pass over the particles the tick's last step found against dynamic
-  /// bodies, removing their approach relative to the bodies' velocities now (see collisions.cpp), each
-  /// body taking the opposite impulse in Bullet.
-  void hold_dynamic_contacts(Particles& particles);
+  /// A particle within the thickness of a dynamic body in the last process() call, with the normal
+  /// step 3 used (the coupling holds these at the end of the tick: Coupling::hold_contacts_at_tick_end).
+  struct DynamicContact {
+    Index particle;
+    btRigidBody* body;
+    Vec3 normal;
+  };
+  const std::vector<DynamicContact>& dynamic_contacts() const { return m_dynamic_contacts; }
+  double friction() const { return m_settings.friction; }
   /// Applies the summed impulses on dynamic bodies without a rigid-body particle, once each.
   void apply_pending_impulses();
   /// Forgets them (the tick that gathered them failed).
@@ -67,12 +77,6 @@ class BulletCollisions final : public CollisionSource {
     btVector3 impulse, torque_impulse;
   };
   std::vector<Pending> m_pending;
-  /// A particle within the thickness of a dynamic body in the last process() call.
-  struct DynamicContact {
-    Index particle;
-    btRigidBody* body;
-    Vec3 normal;
-  };
   std::vector<DynamicContact> m_dynamic_contacts;
   void push_pending(btRigidBody* body, const btVector3& arm, const Vec3& j);
   double m_deepest = 0.0;

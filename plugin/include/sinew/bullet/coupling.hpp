@@ -16,6 +16,20 @@
 // it from the world, or once it has called remove(). (A body deleted while still in the world, or
 // removed, deleted and replaced by a new body at the same address before the next tick, cannot be
 // told from a live one: call remove() first in such code.)
+//
+// The mass of points hard-bound to a dynamic body is the body's (SystemSettings::
+// absorb_bound_mass_into_rigid_bodies, on by default): sinew's rigid-body particle is the merged body
+// (mass, centre of mass, inertia and principal frame, section 2's m = W^T m_bar), and Bullet's body
+// is handed the merged mass (so Bullet's gravity is the weight of both) and the merged inertia about
+// its own centre of mass (its diagonal in the body's frame, all Bullet's btRigidBody takes). Bullet's
+// frame stays the application's: joints, collision shapes, motion states and applyForce offsets keep
+// their meaning, and sinew converts between it and the merged frame at every exchange, so the step
+// moves the body exactly as the merged body moves. What Bullet solves alone (contacts, limits, motors,
+// breakable joints) sees the merged mass at the application's centre, an approximation where the
+// centres differ. A point's momentum enters its body when it is bound (total momentum is kept; not
+// when the application runs the set-up itself with System::finalize before the next tick); the
+// body gets its own mass properties back when the points go, when it is released, and when the
+// coupling is destroyed. centre_of_mass(body) is where the merged centre is.
 #pragma once
 
 #include "sinew/system.hpp"
@@ -39,8 +53,9 @@ struct CouplingSettings {
   /// Gravity for the deformables is read from the world at every tick (so world->setGravity takes
   /// effect at the next one); rigid bodies get theirs from Bullet alone.
   bool use_world_gravity = true;
-  /// Settings of the deformable system; absorb_bound_mass_into_rigid_bodies is forced off because
-  /// Bullet owns the bodies' mass properties (the mass of a point hard-bound to a body is dropped).
+  /// Settings of the deformable system. With absorb_bound_mass_into_rigid_bodies (the default) the
+  /// mass of points hard-bound to a dynamic body is carried by the body, in sinew's step and in
+  /// Bullet (see Coupling); off, it is dropped (its weight and momentum with it).
   SystemSettings system;
   /// Collisions of free and soft-bound particles with every collision object of the world.
   bool collisions = true;
@@ -77,8 +92,15 @@ class Coupling {
   /// springs and soft bindings that end on them. Its rigid-body particle stays, kinematic, at rest
   /// and unused (indices keep their meaning). The body itself is then a plain Bullet body.
   void remove(btRigidBody* body);
-  /// Hard-binds `particle` to `body` at `local` (in the body's centre-of-mass frame, metres).
+  /// Hard-binds `particle` to `body` at `local` (in Bullet's centre-of-mass frame of the body, metres).
   Index bind(Index particle, btRigidBody* body, const Vec3& local);
+  /// The centre of mass of `body` with the mass hard-bound to it (world, metres): Bullet's own centre
+  /// of mass when nothing with mass is bound. Its linear momentum is Bullet's mass times the velocity
+  /// of this point.
+  Vec3 centre_of_mass(const btRigidBody* body) const;
+  /// Where rigid hard binding k (HardBindings::rigid) holds its point, in Bullet's centre-of-mass
+  /// frame of its body (the system's offset is in the merged body's principal frame).
+  Vec3 body_offset(Index k) const;
   /// Hard-binds `particle` to `body` where the particle is now.
   Index bind_here(Index particle, btRigidBody* body);
   /// A massless point hard-bound to `body` at `local`: an end for binding springs. Returns the particle.
@@ -104,6 +126,22 @@ class Coupling {
   void follow_bodies(double dt);
   /// The contacts Bullet resolved this tick also hold the end-of-tick velocities (see coupling.cpp).
   void hold_contacts_at_tick_end(double dt);
+  /// A body as the end-of-tick contacts push it: a coupled dynamic one as the merged body of its
+  /// particle (centre, mass, inertia), any other as Bullet has it; velocities read from and written to
+  /// Bullet. Levers are from `centre`.
+  struct BodyView {
+    btRigidBody* body = nullptr;
+    Index particle = -1;
+    Vec3 centre = Vec3::Zero();
+    Vec3 offset = Vec3::Zero();  // from Bullet's centre of mass to the merged one, now
+    double inverse_mass = 0.0;
+    Mat3 inverse_inertia = Mat3::Zero();
+    Vec3 velocity(const Vec3& lever) const;
+    double inverse_mass_along(const Vec3& lever, const Vec3& u) const;
+    void push(const Vec3& lever, const Vec3& j) const;
+  };
+  /// `at_tick_start`: levers from the centre where the tick's collision detection saw the body.
+  BodyView body_view(btRigidBody* body, bool at_tick_start) const;
   /// At the start of a tick: releases coupled bodies that left the world, follows the mass and
   /// static/kinematic state of the others.
   void follow_world();
@@ -114,6 +152,20 @@ class Coupling {
   void follow_mass(Index b);
   /// What remove() does, without reading the Bullet body (which may be gone).
   void release(Index b);
+  /// Sets up the system after a change (the core merges bound masses into bodies), puts the merged
+  /// frames in Bullet's terms, hands Bullet the merged masses and gives each body the momentum of the
+  /// points newly bound to it.
+  void set_up();
+  /// After a set-up (the coupling's or one the application ran): the merged frames in Bullet's terms
+  /// and the merged masses in Bullet.
+  void adopt_set_up();
+  /// System::set_rigid_body_mass, which takes every merged mass out: the frames are Bullet's again.
+  void set_particle_mass(Index b, bool kinematic, double mass = 1.0, const Vec3& inertia = Vec3::Ones());
+  /// Bullet's body b gets the mass properties of its particle (merged) or its own back.
+  void hand_mass_to_bullet(Index b);
+  void restore_own_mass(Index b);
+  /// The offset in the merged frame of a point at `local` in Bullet's frame of body b.
+  Vec3 merged_offset(Index b, const Vec3& local) const;
   void copy_state_in();
   /// The equality rows of Bullet's joints on coupled bodies, for the step's solves (JointRow).
   void copy_joints_in(double dt);
@@ -132,7 +184,20 @@ class Coupling {
   std::vector<btScalar> m_seen_inverse_mass;
   std::vector<btVector3> m_seen_inverse_inertia;
   std::vector<std::uint8_t> m_in_world;
-  // Per body: state copied in, the Newmark end-of-step twist and the position twist handed to Bullet.
+  // Per body: its mass properties in Bullet as the application gave them (mass, local principal
+  // inertia), whether Bullet has the merged ones instead, and where the merged frame is in Bullet's
+  // frame of the body: centre at offset d, principal frame turned by q_rel (x' = c + R d, q' = q q_rel).
+  std::vector<btScalar> m_own_mass;
+  std::vector<btVector3> m_own_inertia;
+  std::vector<std::uint8_t> m_mass_handed;
+  std::uint64_t m_set_ups_seen = 0;  // System::set_ups() when the offsets below were last taken
+  Vectors3 m_merged_offset;
+  std::vector<Quat> m_merged_turn;
+  // set_up's scratch: the particles' kinds and velocities before set-up.
+  std::vector<ParticleKind> m_kind_before;
+  Vectors3 m_v_before;
+  // Per body, in Bullet's frame: the state copied in, the Newmark end-of-step twist and the position
+  // twist handed to Bullet.
   Vectors3 m_x_in, m_v_in, m_w_in, m_v_next, m_w_next, m_v_position, m_w_position;
   std::vector<Quat> m_q_in;
   std::vector<JointRow> m_joint_rows;
