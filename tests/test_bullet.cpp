@@ -1080,27 +1080,24 @@ INSTANTIATE_TEST_SUITE_P(RadPerSecond, SpinningHub, ::testing::Values(100.0, 700
 
 // The issue's chain through the plugin: 20 capsules of 0.1 kg joined only by binding springs between
 // points on neighbouring bodies, the first hung from a static body, released horizontal, one 1/60 s
-// tick per frame; the joints should hold within 1 mm and the chain's visible energy (Bullet's kinetic
-// plus gravity) never rise above its start. Not yet: the same chain holds in the core alone
-// (test_point_joints: 20 rods, 1e3 to 1e12 N/m, joints within 1e-6 m), but through the coupling
-// it gains energy within two seconds at 1/60 s and at 1/240 s ticks alike (joints open to 5-20 cm,
-// where they used to reach 1e43 m), with Bullet's gyroscopic flags on or off: something in the
-// exchange of states with Bullet does not yet move the bodies as the step did. Disabled, and named
-// in tests/README, until it holds (issue 19).
-class CapsuleChain : public ::testing::TestWithParam<double> {};
-
-TEST_P(CapsuleChain, DISABLED_HoldsAtOneTickPerFrame) {
-  const double k = GetParam();
+// tick per frame. The joints used to pass 1 mm by frame 14 and reach 1e43 m; they hold within 1 mm
+// (or what the chain's weight stretches a soft one by), and the chain's visible energy (Bullet's kinetic plus gravity)
+// never rises above its start. `touching`: the first capsule also rests against its support, a contact Bullet resolves
+// after the step, which the step does not know; Bullet then moves that capsule off the step's update (7e-6 m in the
+// first tick, growing) and the joints open by centimetres. That case is still open (issue 19: contacts of coupled
+// bodies in the step), and disabled.
+void run_capsule_chain(double k, bool touching) {
   BulletWorld bw(btVector3(0, -9.81, 0));
   const double length = 0.1, radius = 0.01;
   btCollisionShape* capsule =
       bw.keep(std::make_unique<btCapsuleShapeX>(btScalar(radius), btScalar(length - 2 * radius)));
   btRigidBody* support = add_box(bw, btVector3(0.02, 0.02, 0.02), 0.0, scenes::at(btVector3(-0.02, 0, 0)));
   const int links = 20, group = 2;
+  const int mask = touching ? btBroadphaseProxy::AllFilter ^ group : 0;
   std::vector<btRigidBody*> rods;
   for (int i = 0; i < links; ++i) {
     btRigidBody* rod = bw.add_body(capsule, 0.1, scenes::at(btVector3(btScalar((i + 0.5) * length), 0, 0)),
-                                   btVector3(0, 0, 0), group, btBroadphaseProxy::AllFilter ^ group);
+                                   btVector3(0, 0, 0), group, mask);
     rod->setActivationState(DISABLE_DEACTIVATION);
     rods.push_back(rod);
   }
@@ -1121,10 +1118,17 @@ TEST_P(CapsuleChain, DISABLED_HoldsAtOneTickPerFrame) {
   }
   // The chain's m g L is 20 x 0.1 x 9.81 x 1 m ~ 20 J; a trace of it is allowed.
   EXPECT_LT(gain, 2e-3) << "k = " << k;
-  EXPECT_LT(gap, 1e-3) << "k = " << k;
+  // The first joint carries the chain's weight W = 19.6 N: statically W / k, swinging a few times it.
+  EXPECT_LT(gap, std::max(1e-3, 5.0 * 20 * 0.1 * 9.81 / k)) << "k = " << k;
 }
 
-INSTANTIATE_TEST_SUITE_P(Stiffness, CapsuleChain, ::testing::Values(1e6, 1e9));
+class CapsuleChain : public ::testing::TestWithParam<double> {};
+
+TEST_P(CapsuleChain, HoldsAtOneTickPerFrame) { run_capsule_chain(GetParam(), false); }
+
+TEST_P(CapsuleChain, DISABLED_HoldsAtOneTickPerFrameAgainstItsSupport) { run_capsule_chain(GetParam(), true); }
+
+INSTANTIATE_TEST_SUITE_P(Stiffness, CapsuleChain, ::testing::Values(1e3, 1e6, 1e9, 1e12));
 
 }  // namespace
 }  // namespace sinew
