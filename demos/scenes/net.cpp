@@ -54,9 +54,10 @@ class Net final : public BulletScene {
     m_ball = m_world.add_body(ball, 5.0, at(btVector3(0.05, 2.0, -0.03)));
     m_ball->setActivationState(DISABLE_DEACTIVATION);
   }
-  // Stiff point joints between light rods meet Bullet's contact solver when the ball lands; at 1/240 s
-  // ticks the exchange of the two solvers' velocities gains energy on impact and diverges within a
-  // second; at 1/480 s it is stable.
+  // Stiff point joints between light rods meet Bullet's contact solver when the ball lands, a contact
+  // the step does not know. At 1/480 s ticks the scene's energy only falls (100.9 J at frame 300, 98.9
+  // J at frame 600). At 1/240 s it no longer diverges, but it gains: 100.9 J at frame 300, 127.0 J at
+  // frame 450. At 1/120 s it ends at 298 J from 157 J.
   int default_substeps() const override { return 8; }
   btRigidBody* ball() const { return m_ball; }
 
