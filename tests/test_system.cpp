@@ -564,6 +564,24 @@ TEST(System, NonFiniteStateStopsTheStepNamingPhaseAndParticle) {
 // steps 1 and 2 have moved everything, and the system is exactly where it was (the same hash), and
 // steps on once the source is gone. A NaN put into the state between steps is named at the step's
 // start, a body's before the points bound to it.
+// A force whose implicit product turns non-finite (here a NaN damping coefficient, set where no
+// setting is validated) stops the solve naming the force, not only the step.
+TEST(System, ANonFiniteSolveNamesTheForce) {
+  System s;
+  s.add_particle(Vec3::Zero(), Vec3::Zero(), 1.0);
+  const Index p = s.add_particle(Vec3::UnitX(), Vec3::Zero(), 1.0);
+  s.add_force(std::make_unique<test::AnchorSprings>(std::vector<Index>{p}, Vectors3::Zero(3, 1), 1.0,
+                                                    std::numeric_limits<double>::quiet_NaN()));
+  s.add_binding_spring({0, p, 10.0, 1.0});  // an implicit term, so that the step solves with CG
+  const std::string message = error_of([&] { s.step(0.01); });
+  EXPECT_NE(message.find("conjugate gradients"), std::string::npos) << message;
+  EXPECT_NE(
+      message.find("force '" + std::string(test::AnchorSprings({p}, Vectors3::Zero(3, 1), 1.0, 0.0).name()) + "'"),
+      std::string::npos)
+      << message;
+  EXPECT_TRUE(s.particles().x.allFinite() && s.particles().v.allFinite()) << "the start state is kept";
+}
+
 TEST(System, AFailedStepLeavesTheStateOfItsStart) {
   System s;
   const ClothGrid cloth = add_cloth_grid(s, test::square_cloth(5, 0.4, Vec3(0, 1, 0)));

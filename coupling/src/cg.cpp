@@ -1,6 +1,7 @@
 #include "cg.hpp"
 
 #include <cmath>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -65,6 +66,16 @@ double max_abs(const GeneralizedVector& v) {
   return m;
 }
 
+// Where v first holds a non-finite value, as "<prefix>particle i)" or "<prefix>rigid body b)"; empty
+// when it is finite: what a failed solve names.
+static std::string where_non_finite(const GeneralizedVector& v, const char* prefix) {
+  for (Index i = 0; i < v.particles.cols(); ++i)
+    if (!v.particles.col(i).allFinite()) return std::string(prefix) + "particle " + std::to_string(i) + ")";
+  for (Index b = 0; b < v.rigid.cols(); ++b)
+    if (!v.rigid.col(b).allFinite()) return std::string(prefix) + "rigid body " + std::to_string(b) + ")";
+  return {};
+}
+
 void ConjugateGradients::resize(Index particle_count, Index rigid_count) {
   for (GeneralizedVector* g : {&m_r, &m_z, &m_p, &m_q}) g->resize(particle_count, rigid_count);
 }
@@ -92,6 +103,11 @@ SolveResult ConjugateGradients::solve(LinearOperator& op, const GeneralizedVecto
   }
   if (c.particles.cols() == 0 && c.rigid.cols() == 0) return result;
   result.residual = max_abs(m_z);
+  // A non-finite residual compares false with the tolerance and would pass for converged.
+  if (!std::isfinite(result.residual))
+    fail("Newmark step ", step, ": the linear solve's residual is not finite",
+         where_non_finite(c, " (the right-hand side, the forces and momentum, of "),
+         where_non_finite(y, " (the initial guess, of "), where_non_finite(m_q, " (the operator's product, of "));
   if (alternative) {
     // The alternative's preconditioned residual, in m_p (r) and m_q (z). Alternative::if_exact (the
     // first step's M^-1 c): taken only when it is exact to well below the tolerance (1e-3 of it: no
@@ -129,7 +145,10 @@ SolveResult ConjugateGradients::solve(LinearOperator& op, const GeneralizedVecto
     op.apply(m_p, m_q);
     const double pq = dot(m_p, m_q);
     if (!(pq > 0.0)) {
-      if (!std::isfinite(pq)) fail("Newmark step ", step, ": conjugate gradients produced a non-finite value");
+      if (!std::isfinite(pq))
+        fail("Newmark step ", step, ": conjugate gradients produced a non-finite value",
+             where_non_finite(c, " (the right-hand side, the forces and momentum, of "),
+             where_non_finite(y, " (the solution so far, of "), where_non_finite(m_q, " (the operator's product, of "));
       break;  // the remaining residual lies in S's null space: nothing more to gain
     }
     const double alpha = rz / pq;
@@ -142,6 +161,9 @@ SolveResult ConjugateGradients::solve(LinearOperator& op, const GeneralizedVecto
     update_direction(m_z, beta_cg, m_p);
     ++result.iterations;
     result.residual = max_abs(m_z);
+    if (!std::isfinite(result.residual))
+      fail("Newmark step ", step, ": conjugate gradients produced a non-finite value",
+           where_non_finite(m_z, " (the residual, of "));
   }
   return result;
 }

@@ -4,6 +4,7 @@
 #include <algorithm>
 
 #include <chrono>
+#include <string>
 
 namespace sinew {
 
@@ -846,8 +847,29 @@ SolveResult Newmark::solve(const StepModel& s, const SolveCoefficients& k, bool 
     m_preconditioner.build(s, m_body_I, k, jacobi);
     m_preconditioner_key = {k, jacobi};
   }
-  return m_cg.solve(m_system, m_c, m_y, settings.cg_tolerance, settings.cg_max_iterations, linear_solve, alternative,
-                    rule, m_step_count);
+  try {
+    return m_cg.solve(m_system, m_c, m_y, settings.cg_tolerance, settings.cg_max_iterations, linear_solve, alternative,
+                      rule, m_step_count);
+  } catch (const Error& e) {
+    // Which term turns finite velocities into non-finite forces: each force's implicit products, and
+    // the binding springs', on a finite probe (a NaN coefficient set where nothing validated it).
+    m_u.setOnes();
+    std::string culprit;
+    for (const auto& f : s.forces) {
+      m_g.setZero();
+      f->add_implicit_products(m_u, k.h, m_g);
+      if (!m_g.allFinite()) {
+        culprit = "; force '" + std::string(f->name()) + "' gives non-finite forces for finite velocities";
+        break;
+      }
+    }
+    if (culprit.empty()) {
+      m_g.setZero();
+      s.springs.add_linear_forces(m_u, 1.0, k.h, m_g);
+      if (!m_g.allFinite()) culprit = "; the binding springs give non-finite forces for finite velocities";
+    }
+    fail(e.what(), culprit);
+  }
 }
 
 void Newmark::check_constraint(const StepModel& s, const CollisionConstraint& c, std::string_view source) const {
