@@ -1130,5 +1130,274 @@ TEST_P(CapsuleChain, DISABLED_HoldsAtOneTickPerFrameAgainstItsSupport) { run_cap
 
 INSTANTIATE_TEST_SUITE_P(Stiffness, CapsuleChain, ::testing::Values(1e3, 1e6, 1e9, 1e12));
 
+// ---- Teleports: the application moves a coupled body between ticks ------------------------------------
+
+// What an application does to put a body somewhere else at once: its frame, Bullet's interpolation
+// frame (so that Bullet sees no sweep) and its motion state, all moved by `move` (world to world).
+void teleport(btRigidBody* body, const btTransform& move) {
+  const btTransform to = move * body->getWorldTransform();
+  body->setWorldTransform(to);
+  body->setInterpolationWorldTransform(to);
+  if (body->getMotionState()) body->getMotionState()->setWorldTransform(to);
+}
+
+// A 10x10 cloth hanging from a spinning box by its top row: hard-bound, or tied by binding springs
+// (k 1e4), to a dynamic or static box. Gravity along -y, no collisions (the top row starts on the
+// box's face).
+struct HangingCloth {
+  enum class Tie { hard, spring };
+  BulletWorld bw{btVector3(0, -9.81, 0)};
+  btRigidBody* box = nullptr;
+  std::unique_ptr<bullet::Coupling> coupling;
+  scenes::ClothGrid cloth;
+
+  HangingCloth(Tie tie, bool dynamic, bool kinematic = false) {
+    box = add_box(bw, btVector3(0.5, 0.05, 0.05), dynamic ? 2.0 : 0.0, scenes::at(btVector3(0, 1.0, 0)));
+    if (kinematic) {
+      // Bullet animates a kinematic body only if it was one when added to the world.
+      bw.world().removeRigidBody(box);
+      box->setCollisionFlags((box->getCollisionFlags() & ~btCollisionObject::CF_STATIC_OBJECT) |
+                             btCollisionObject::CF_KINEMATIC_OBJECT);
+      bw.world().addRigidBody(box);
+    }
+    if (dynamic) {
+      box->setLinearVelocity(btVector3(0.3, 0.0, 0.1));
+      box->setAngularVelocity(btVector3(0, 2.0, 0));
+    }
+    bullet::CouplingSettings settings;
+    settings.collisions = false;
+    coupling = std::make_unique<bullet::Coupling>(&bw.world(), settings);
+    System& s = coupling->system();
+    s.step_settings().cg_tolerance = 1e-12;
+    scenes::ClothGridSettings c = small_cloth(Vec3(-0.45, 0.95, 0));
+    c.nx = c.ny = 10;
+    c.width = c.height = 0.9;
+    c.stretch_stiffness = 500.0;
+    cloth = scenes::add_cloth_grid(s, c);
+    if (!kinematic) {  // swinging round the box's axis: a motion to carry
+      for (Index n : cloth.nodes) s.particles().v.col(n) = Vec3(0, 2.0, 0).cross(Vec3(s.particles().x.col(n)));
+    }
+    const btTransform& frame = box->getCenterOfMassTransform();
+    for (int i = 0; i < 10; ++i) {
+      const Index n = cloth.node(i, 0);
+      if (tie == Tie::hard) {
+        coupling->bind_here(n, box);
+      } else {
+        coupling->attach(n, box, bullet::to_eigen(frame.invXform(bullet::to_bullet(s.particles().x.col(n)))), 1e4);
+      }
+    }
+  }
+  System& system() { return coupling->system(); }
+  void frame() { bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240)); }
+  // Kinetic energy of the cloth's nodes (the box's, with the mass bound to it, is Bullet's).
+  double cloth_kinetic_energy() {
+    double e = 0.0;
+    for (Index n : cloth.nodes)
+      if (system().particles().kind[n] != ParticleKind::hard_bound)
+        e += 0.5 * system().particles().mass[n] * system().particles().v.col(n).squaredNorm();
+    return e;
+  }
+  // The fastest node relative to the box's centre of mass.
+  double max_cloth_speed() {
+    const Vec3 v_box = bullet::to_eigen(box->getLinearVelocity());
+    double speed = 0.0;
+    for (Index n : cloth.nodes) speed = std::max(speed, (Vec3(system().particles().v.col(n)) - v_box).norm());
+    return speed;
+  }
+};
+
+// The physics does not care where the scene is: with gravity along the turn's axis, the run whose box
+// the application moves by a rigid transform T (turning its velocities with it) must be the run left
+// alone, moved by T, to the solves' round-off: every node at T x, moving with R v, the cloth's kinetic
+// energy the same. (Before, the bound row jumped 100 m with the box and the rest of the cloth stayed:
+// the hard-bound cloth then reached 1e40.)
+void run_carried_by_teleport(HangingCloth::Tie tie, bool dynamic) {
+  const std::string what = std::string(tie == HangingCloth::Tie::hard ? "hard-bound" : "tied by springs") +
+                           (dynamic ? ", dynamic box" : ", static box");
+  HangingCloth left_alone(tie, dynamic), moved(tie, dynamic);
+  const btTransform move(btQuaternion(btVector3(0, 1, 0), btScalar(0.5 * 3.14159265358979323846)),
+                         btVector3(100, 0, -40));
+  const Mat3 R = bullet::to_eigen(move.getRotation()).toRotationMatrix();
+  const Vec3 t = bullet::to_eigen(move.getOrigin());
+  for (int frame = 0; frame < 20; ++frame) {
+    left_alone.frame();
+    moved.frame();
+  }
+  const double energy_before = moved.cloth_kinetic_energy();
+  ASSERT_GT(energy_before, 1e-3) << what;  // the cloth is swinging: a velocity to carry
+  teleport(moved.box, move);
+  // The application turns the box's velocities with it (set between ticks: taken in as they are).
+  moved.box->setLinearVelocity(move.getBasis() * moved.box->getLinearVelocity());
+  moved.box->setAngularVelocity(move.getBasis() * moved.box->getAngularVelocity());
+  auto compare = [&](int frame, double tolerance) {
+    const System& a = left_alone.system();
+    const System& b = moved.system();
+    double dx = 0.0, dv = 0.0;
+    for (Index n : moved.cloth.nodes) {
+      dx = std::max(dx, (Vec3(b.particles().x.col(n)) - (R * a.particles().x.col(n) + t)).norm());
+      dv = std::max(dv, (Vec3(b.particles().v.col(n)) - R * a.particles().v.col(n)).norm());
+    }
+    const btTransform expected_box = move * left_alone.box->getCenterOfMassTransform();
+    const double box_off =
+        (bullet::to_eigen(moved.box->getCenterOfMassPosition()) - bullet::to_eigen(expected_box.getOrigin())).norm();
+    EXPECT_LT(box_off, tolerance) << what << ", frame " << frame;
+    EXPECT_LT(dx, tolerance) << what << ", frame " << frame;
+    EXPECT_LT(dv, tolerance) << what << ", frame " << frame;
+    EXPECT_NEAR(moved.cloth_kinetic_energy(), left_alone.cloth_kinetic_energy(),
+                tolerance * (1.0 + left_alone.cloth_kinetic_energy()))
+        << what << ", frame " << frame;
+  };
+  left_alone.frame();
+  moved.frame();
+  compare(21, 1e-8);
+  for (int frame = 22; frame < 60; ++frame) {
+    left_alone.frame();
+    moved.frame();
+  }
+  compare(60, 1e-6);
+  // A few hundred frames on: finite and as lively as the cloth left alone.
+  // (The two runs part by round-off, which the swinging cloth amplifies: compared by how fast the cloth
+  // moves relative to its box, the free fall taken out.)
+  double fastest = 0.0, fastest_alone = 0.0;
+  for (int frame = 60; frame < 200; ++frame) {
+    left_alone.frame();
+    moved.frame();
+    fastest = std::max(fastest, moved.max_cloth_speed());
+    fastest_alone = std::max(fastest_alone, left_alone.max_cloth_speed());
+  }
+  EXPECT_TRUE(moved.system().particles().x.allFinite() && moved.system().particles().v.allFinite()) << what;
+  EXPECT_LT(fastest, 2.0 * fastest_alone + 0.1) << what;
+}
+
+TEST(Teleport, ClothHardBoundToADynamicBodyIsCarriedWithIt) { run_carried_by_teleport(HangingCloth::Tie::hard, true); }
+
+TEST(Teleport, ClothTiedToADynamicBodyBySpringsIsCarriedWithIt) {
+  run_carried_by_teleport(HangingCloth::Tie::spring, true);
+}
+
+TEST(Teleport, ClothOnAStaticBodyIsCarriedWithIt) {
+  run_carried_by_teleport(HangingCloth::Tie::hard, false);
+  run_carried_by_teleport(HangingCloth::Tie::spring, false);
+}
+
+// A kinematic body animated through its motion state moves between ticks as Bullet moves it, and that
+// is prescribed motion, not a teleport: the cloth bound to it sweeps with it (its bound row on the
+// body, the rest trailing behind and taking up the motion), it is not carried rigidly.
+TEST(Teleport, AKinematicBodyAnimatedByItsMotionStateSweepsTheCloth) {
+  HangingCloth scene(HangingCloth::Tie::hard, false, true);
+  btRigidBody* rod = scene.box;
+  System& s = scene.system();
+  for (int frame = 0; frame < 30; ++frame) scene.frame();  // settle
+  // Each node where it is in the rod's frame, and the cloth's centre.
+  auto in_rod_frame = [&] {
+    Vectors3 local(3, static_cast<Index>(scene.cloth.nodes.size()));
+    for (std::size_t k = 0; k < scene.cloth.nodes.size(); ++k)
+      local.col(static_cast<Index>(k)) = bullet::to_eigen(
+          rod->getCenterOfMassTransform().invXform(bullet::to_bullet(Vec3(s.particles().x.col(scene.cloth.nodes[k])))));
+    return local;
+  };
+  auto centre = [&] {
+    Vec3 sum = Vec3::Zero();
+    for (Index n : scene.cloth.nodes) sum += s.particles().x.col(n);
+    return Vec3(sum / static_cast<double>(scene.cloth.nodes.size()));
+  };
+  const Vectors3 local_before = in_rod_frame();
+  const Vec3 centre_before = centre();
+  btTransform to = rod->getCenterOfMassTransform();
+  const int frames = 6;
+  const double speed = 3.0;  // [m/s] along x
+  for (int frame = 0; frame < frames; ++frame) {
+    to.setOrigin(to.getOrigin() + btVector3(btScalar(speed / 60.0), 0, 0));
+    rod->getMotionState()->setWorldTransform(to);
+    scene.frame();
+    // The bound row is on the rod where Bullet has it at the end of every frame.
+    const btTransform& frame_now = rod->getCenterOfMassTransform();
+    for (Index k = 0; k < s.hard_bindings().rigid_count(); ++k) {
+      const Vec3 expected =
+          bullet::to_eigen(frame_now * bullet::to_bullet(Vec3(s.hard_bindings().rigid_offset_body(k))));
+      EXPECT_LT((Vec3(s.particles().x.col(s.hard_bindings().rigid_particle(k))) - expected).norm(), 1e-9);
+    }
+  }
+  const double moved = speed * frames / 60.0;
+  EXPECT_NEAR(rod->getCenterOfMassPosition().x(), moved, 1e-9);
+  // The cloth came along, pulled by its bound row (its centre moved the same way, by a fair part of the
+  // rod's move), but not as a rigid piece: it changed shape on the rod by centimetres.
+  const double came = centre().x() - centre_before.x();
+  EXPECT_GT(came, 0.2 * moved);
+  EXPECT_LT(came, 2.0 * moved);
+  EXPECT_GT((in_rod_frame() - local_before).colwise().norm().maxCoeff(), 0.01);
+  EXPECT_TRUE(s.particles().x.allFinite() && s.particles().v.allFinite());
+}
+
+// A cloth tied to two bodies, one of which the application moves 100 m (turning it a quarter turn): no
+// rigid transform carries both ties, so the cloth stays and its ties to the moved body, a binding
+// spring (k 1e4) or its hard-bound column, are stretched by the move. What follows is bounded by the
+// energy that stretch gave: no gravity, and the implicit, critically damped springs and the cloth's
+// damping only take energy away.
+void run_tied_to_a_moved_and_a_still_body(bool hard_on_moved, bool still_is_dynamic, int frames) {
+  const std::string what = std::string(hard_on_moved ? "hard-bound" : "tied by a spring") + " to the moved body, " +
+                           (still_is_dynamic ? "still body dynamic" : "still body static");
+  BulletWorld bw(btVector3(0, 0, 0));
+  btRigidBody* moved = add_box(bw, btVector3(0.05, 0.05, 0.05), 2.0, scenes::at(btVector3(-0.5, 1.0, 0)));
+  btRigidBody* still =
+      add_box(bw, btVector3(0.05, 0.05, 0.05), still_is_dynamic ? 2.0 : 0.0, scenes::at(btVector3(0.5, 1.0, 0)));
+  bullet::CouplingSettings settings;
+  settings.collisions = false;
+  bullet::Coupling coupling(&bw.world(), settings);
+  System& s = coupling.system();
+  scenes::ClothGridSettings c = small_cloth(Vec3(-0.45, 0.95, 0));
+  c.nx = c.ny = 10;
+  c.width = c.height = 0.9;
+  c.stretch_stiffness = 500.0;
+  const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
+  auto local = [&](btRigidBody* body, Index n) {
+    return bullet::to_eigen(body->getCenterOfMassTransform().invXform(bullet::to_bullet(Vec3(s.particles().x.col(n)))));
+  };
+  std::vector<Index> on_moved;  // the particles that go with the moved body: bound nodes or spring ends
+  for (int j = 0; j < 3; ++j) {
+    const Index left = cloth.node(0, j), right = cloth.node(9, j);
+    if (hard_on_moved) {
+      coupling.bind_here(left, moved);
+      on_moved.push_back(left);
+    } else {
+      const Index spring = coupling.attach(left, moved, local(moved, left), 1e4);
+      on_moved.push_back(s.binding_springs().b(spring));
+    }
+    coupling.attach(right, still, local(still, right), 1e4);
+  }
+  auto energy = [&] { return s.kinetic_energy() + s.potential_energy(); };
+  for (int frame = 0; frame < 10; ++frame) bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+  const btTransform move(btQuaternion(btVector3(0, 0, 1), btScalar(0.5 * 3.14159265358979323846)),
+                         btVector3(100, 0, 0));
+  // The energy the move gives: the elastic and spring energy with those particles moved with the body.
+  const double before = energy();
+  const Vectors3 x_before = s.particles().x;
+  for (Index p : on_moved)
+    s.particles().x.col(p) = bullet::to_eigen(move * bullet::to_bullet(Vec3(s.particles().x.col(p))));
+  const double given = energy() - before;
+  s.particles().x = x_before;
+  teleport(moved, move);
+  double worst = -kInfinity;
+  for (int frame = 0; frame < frames; ++frame) {
+    bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+    ASSERT_TRUE(s.particles().x.allFinite() && s.particles().v.allFinite()) << what << ", frame " << frame;
+    worst = std::max(worst, energy());
+  }
+  EXPECT_GT(given, 1e6) << what;  // k/2 (100 m)^2 a stretched spring or edge, about
+  EXPECT_LE(worst, before + given * (1.0 + 1e-6)) << what;
+}
+
+TEST(Teleport, ClothTiedToAMovedBodyAndAStaticOneStaysBounded) {
+  run_tied_to_a_moved_and_a_still_body(false, false, 120);
+  run_tied_to_a_moved_and_a_still_body(true, false, 120);
+}
+
+// Between two dynamic boxes of 2 kg the stretch's 1e8 J spins both at 3000-4500 rad/s, past the turn a
+// step can make (pi/4 per substep: 1100 rad/s at the cloth's 1/1440 s substeps); the energy, falling for
+// 60 frames, then grows without bound. Disabled until bodies turning that fast are held.
+TEST(Teleport, DISABLED_ClothTiedToAMovedBodyAndAStillDynamicOneStaysBounded) {
+  run_tied_to_a_moved_and_a_still_body(false, true, 240);
+}
+
 }  // namespace
 }  // namespace sinew

@@ -2,6 +2,11 @@
 
 #include "sinew/bullet/collisions.hpp"
 #include "sinew/bullet/convert.hpp"
+#include "sinew/forces/centroid_springs.hpp"
+#include "sinew/forces/corotated_tets.hpp"
+#include "sinew/forces/dihedral_bending.hpp"
+#include "sinew/forces/edge_springs.hpp"
+#include "sinew/forces/triangle_membrane.hpp"
 
 #include <btBulletDynamicsCommon.h>
 
@@ -113,6 +118,50 @@ JointRow joint_row(const btTypedConstraint::btConstraintInfo2& info2, int r, Ind
   return row;
 }
 
+Mat3 to_eigen_matrix(const btMatrix3x3& m) {
+  Mat3 out;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) out(r, c) = static_cast<double>(m[r][c]);
+  return out;
+}
+
+// Components of the particle graph (union-find): the root of i, halving the path on the way; joining
+// keeps the smaller index as the root, so the roots do not depend on the order of the joins.
+Index find_root(std::vector<Index>& root, Index i) {
+  while (root[static_cast<std::size_t>(i)] != i) {
+    root[static_cast<std::size_t>(i)] = root[static_cast<std::size_t>(root[static_cast<std::size_t>(i)])];
+    i = root[static_cast<std::size_t>(i)];
+  }
+  return i;
+}
+
+void join(std::vector<Index>& root, Index a, Index b) {
+  a = find_root(root, a);
+  b = find_root(root, b);
+  if (a != b) root[static_cast<std::size_t>(std::max(a, b))] = std::min(a, b);
+}
+
+template <typename Nodes>
+void join_nodes(std::vector<Index>& root, const Nodes& nodes) {
+  for (std::size_t k = 1; k < std::size(nodes); ++k) join(root, nodes[0], nodes[k]);
+}
+
+template <typename Element>
+void join_elements(std::vector<Index>& root, const std::vector<Element>& elements) {
+  for (const Element& e : elements) join_nodes(root, e);
+}
+
+// The elements of the forces sinew provides join their nodes. A force of the application's own
+// exposes no elements; the collision surfaces the builders register cover the meshes it is built on.
+void join_force_elements(std::vector<Index>& root, const Force& force) {
+  if (const auto* f = dynamic_cast<const EdgeSprings*>(&force)) join_elements(root, f->edges());
+  if (const auto* f = dynamic_cast<const TriangleMembrane*>(&force)) join_elements(root, f->triangles());
+  if (const auto* f = dynamic_cast<const CorotatedTets*>(&force)) join_elements(root, f->tets());
+  if (const auto* f = dynamic_cast<const DihedralBending*>(&force)) join_elements(root, f->hinges());
+  if (const auto* f = dynamic_cast<const CentroidSprings*>(&force))
+    for (Index e = 0; e < f->stencils().size(); ++e) join_nodes(root, f->stencils()[e]);
+}
+
 }  // namespace
 
 Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m_world(world) {
@@ -180,6 +229,7 @@ void Coupling::follow_bodies(double dt) {
   hold_contacts_at_tick_end(dt);
   copy_state_in();
   m_system.clamp_bound_rows();
+  note_frames_left();
 }
 
 Index Coupling::rigid_particle(btRigidBody* body) {
@@ -233,6 +283,13 @@ void Coupling::add_own_body_slots() {
   m_merged_offset.conservativeResize(3, static_cast<Index>(count));
   m_merged_offset.rightCols(static_cast<Index>(count) - old).setZero();
   m_merged_turn.resize(count, Quat::Identity());
+  m_origin_left.conservativeResize(3, static_cast<Index>(count));
+  m_origin_left.rightCols(static_cast<Index>(count) - old).setZero();
+  m_basis_left.resize(count, Mat3::Identity());
+  m_frame_left_known.resize(count, 0);
+  m_move_rotation.resize(count, Mat3::Identity());
+  m_move_translation.conservativeResize(3, static_cast<Index>(count));
+  m_move_translation.rightCols(static_cast<Index>(count) - old).setZero();
 }
 
 void Coupling::remove(btRigidBody* body) {
@@ -458,6 +515,114 @@ void Coupling::follow_mass(Index b) {
   set_particle_mass(b, false, static_cast<double>(m_own_mass[i]), to_eigen(m_own_inertia[i]));
 }
 
+void Coupling::note_frames_left() {
+  for (std::size_t b = 0; b < m_bodies.size(); ++b) {
+    m_frame_left_known[b] = m_bodies[b] ? 1 : 0;
+    if (!m_bodies[b]) continue;
+    const btTransform& frame = m_bodies[b]->getCenterOfMassTransform();
+    m_origin_left.col(static_cast<Index>(b)) = to_eigen(frame.getOrigin());
+    m_basis_left[b] = to_eigen_matrix(frame.getBasis());
+  }
+  m_particles_left = m_system.particles().size();
+}
+
+// Bullet moves a dynamic or static body only inside a tick (integration, and nothing for a static one),
+// so a frame at a tick's start that is not the one the last tick left it in was set by the application
+// (setWorldTransform, setCenterOfMassTransform): a teleport, by the rigid transform x -> R x + t that
+// takes the old frame to the new. The deformables that follow the body go with it: every component of
+// the particle graph (elements, collision surfaces, embeddings, soft bindings and active binding
+// springs join particles; a rigid body does not) bound to the body, positions moved by the transform
+// and velocities turned by R, so its shape on the body and its motion relative to it are what they
+// were (it is not given the jump as velocity). The body's own velocities are the application's.
+// A component bound to several bodies goes only where all of them went alike (the same transform to
+// round-off: the application moved them together); one also held by a body the move left (or a
+// kinematic one, or sinew's own), by a kinematic particle, or holding particles added since the last
+// tick (placed by the application, perhaps already where it wanted them) stays, and its ties to the
+// moved body stretch. Components bound to nothing are never moved.
+//
+// A kinematic body is moved between ticks by Bullet itself (from its motion state, with the velocity
+// that covers the move) and the cloth sweeps with it (copy_state_in): prescribed motion, not a teleport.
+// So is the first tick of a body, which has no frame left by a tick to compare with.
+void Coupling::follow_teleports() {
+  const std::size_t count = m_bodies.size();
+  m_moved_by.assign(count, -1);
+  bool any = false;
+  for (std::size_t b = 0; b < count; ++b) {
+    if (!m_frame_left_known[b] || !m_bodies[b] || m_bodies[b]->isKinematicObject()) continue;
+    const btTransform& frame = m_bodies[b]->getCenterOfMassTransform();
+    const Vec3 origin = to_eigen(frame.getOrigin());
+    const Mat3 basis = to_eigen_matrix(frame.getBasis());
+    const auto i = static_cast<Index>(b);
+    if (origin == Vec3(m_origin_left.col(i)) && basis == m_basis_left[b]) continue;
+    m_move_rotation[b] = basis * m_basis_left[b].transpose();
+    m_move_translation.col(i) = origin - m_move_rotation[b] * m_origin_left.col(i);
+    m_moved_by[b] = i;
+    any = true;
+  }
+  // A tick the post-tick callback does not close (Coupling::tick called alone) leaves nothing to compare.
+  std::fill(m_frame_left_known.begin(), m_frame_left_known.end(), std::uint8_t(0));
+  if (!any) return;
+  // Bodies moved alike share the first one's move. Round-off: the rotations from two frames turned by
+  // the same R differ by a few ulps, the translations by that times the distance moved.
+  for (std::size_t b = 0; b < count; ++b) {
+    if (m_moved_by[b] < 0) continue;
+    const auto i = static_cast<Index>(b);
+    for (std::size_t c = 0; c < b; ++c) {
+      if (m_moved_by[c] != static_cast<Index>(c)) continue;
+      const auto j = static_cast<Index>(c);
+      const double reach =
+          1.0 + m_origin_left.col(i).norm() + m_origin_left.col(j).norm() + m_move_translation.col(i).norm();
+      if ((m_move_rotation[b] - m_move_rotation[c]).cwiseAbs().maxCoeff() <= 1e-12 &&
+          (m_move_translation.col(i) - m_move_translation.col(j)).norm() <= 1e-12 * reach) {
+        m_moved_by[b] = j;
+        break;
+      }
+    }
+  }
+  Particles& particles = m_system.particles();
+  const Index n = particles.size();
+  m_root.resize(static_cast<std::size_t>(n));
+  for (Index p = 0; p < n; ++p) m_root[static_cast<std::size_t>(p)] = p;
+  for (const auto& force : m_system.forces()) join_force_elements(m_root, *force);
+  join_elements(m_root, m_system.collision_geometry().triangles);
+  const LinearBindings& linear = m_system.hard_bindings().linear();
+  for (Index k = 0; k < linear.size(); ++k)
+    for (Index parent : linear.parents(k)) join(m_root, linear.particle(k), parent);
+  const SoftBindings& soft = m_system.soft_bindings();
+  for (Index k = 0; k < soft.size(); ++k)
+    join(m_root, soft.particle[static_cast<std::size_t>(k)], soft.target[static_cast<std::size_t>(k)]);
+  const BindingSprings& springs = m_system.binding_springs();
+  for (Index k = 0; k < springs.size(); ++k)
+    if (!springs.removed(k) && springs.active(k)) join(m_root, springs.a(k), springs.b(k));
+  // Per component root: the move that carries it, kFree while nothing binds it, kHeld once two things
+  // that do not move alike do.
+  constexpr Index kFree = -1, kHeld = -2;
+  m_carrier.assign(static_cast<std::size_t>(n), kFree);
+  auto meet = [&](Index p, Index carrier) {
+    Index& c = m_carrier[static_cast<std::size_t>(find_root(m_root, p))];
+    c = c == kFree || c == carrier ? carrier : kHeld;
+  };
+  const RigidBindings& rigid = m_system.hard_bindings().rigid();
+  for (Index k = 0; k < rigid.size(); ++k) {
+    const auto b = static_cast<std::size_t>(rigid.body(k));
+    meet(rigid.particle(k), b < count && m_moved_by[b] >= 0 ? m_moved_by[b] : kHeld);
+  }
+  for (Index p = 0; p < n; ++p)
+    if (particles.kind[p] == ParticleKind::kinematic || p >= m_particles_left) meet(p, kHeld);
+  bool carried = false;
+  for (Index p = 0; p < n; ++p) {
+    if (particles.kind[p] == ParticleKind::removed) continue;
+    const Index c = m_carrier[static_cast<std::size_t>(find_root(m_root, p))];
+    if (c < 0) continue;
+    const Mat3& R = m_move_rotation[static_cast<std::size_t>(c)];
+    particles.x.col(p) = R * particles.x.col(p) + m_move_translation.col(c);
+    particles.v.col(p) = R * particles.v.col(p);
+    carried = true;
+  }
+  // The bound rows on the bodies' new frames (a set-up, if one is due, puts them there itself).
+  if (carried && !m_system.needs_set_up()) m_system.clamp_bound_rows();
+}
+
 Index Coupling::bind(Index particle, btRigidBody* body, const Vec3& local) {
   const Index b = rigid_particle(body);
   return m_system.bind_rigid(particle, b, merged_offset(b, local));
@@ -504,6 +669,7 @@ StepStats Coupling::tick(double dt) {
   // frames, where Bullet's bodies still are, say where the merged frames sit.
   if (m_system.set_ups() != m_set_ups_seen) adopt_set_up();
   copy_state_in();
+  follow_teleports();
   if (m_system.needs_set_up()) set_up();
   copy_joints_in(dt);
   // A tick that throws leaves the state of its start: the deformables and rigid-body particles as

@@ -30,6 +30,16 @@
 // when the application runs the set-up itself with System::finalize before the next tick); the
 // body gets its own mass properties back when the points go, when it is released, and when the
 // coupling is destroyed. centre_of_mass(body) is where the merged centre is.
+//
+// A dynamic or static body the application moves between ticks (setWorldTransform, or
+// setCenterOfMassTransform: its frame at a tick's start is not the one the last tick left it in, which
+// Bullet's own integration never does) is a teleport: each deformable component bound to it (particles
+// joined by elements, collision surfaces, embeddings, soft bindings and binding springs) is carried with
+// it, positions by the same rigid transform and velocities turned by its rotation, so the cloth keeps
+// its shape on the body and is not flung. A component also bound to something the move did not carry
+// (another body, a kinematic particle, particles added since the last tick) stays where it is, and its
+// ties to the moved body are stretched. Kinematic bodies are animated by Bullet between ticks: their
+// moves are prescribed motion, which the cloth sweeps with, never teleports.
 #pragma once
 
 #include "sinew/system.hpp"
@@ -145,6 +155,11 @@ class Coupling {
   /// At the start of a tick: releases coupled bodies that left the world, follows the mass and
   /// static/kinematic state of the others.
   void follow_world();
+  /// At the start of a tick, after copy_state_in: the deformables that follow a body the application
+  /// moved since the last tick go with it (see coupling.cpp).
+  void follow_teleports();
+  /// At the end of a tick: where each coupled body is, for follow_teleports.
+  void note_frames_left();
   /// Slots for rigid bodies added to the system directly (sinew's own: no Bullet body).
   void add_own_body_slots();
   /// The rigid-body particle of a body the application changed: kinematic when Bullet's body is
@@ -201,6 +216,18 @@ class Coupling {
   Vectors3 m_x_in, m_v_in, m_w_in, m_v_next, m_w_next, m_v_position, m_w_position;
   std::vector<Quat> m_q_in;
   std::vector<JointRow> m_joint_rows;
+  // Per body: Bullet's frame as the last tick left it (origin, basis), valid where m_frame_left_known,
+  // and how many particles there were then; follow_teleports' scratch: per body the move found (rotation,
+  // translation), per particle its component's root, per component what carries it.
+  Vectors3 m_origin_left;
+  std::vector<Mat3> m_basis_left;
+  std::vector<std::uint8_t> m_frame_left_known;
+  Index m_particles_left = 0;
+  std::vector<Mat3> m_move_rotation;
+  Vectors3 m_move_translation;
+  std::vector<Index> m_moved_by;
+  std::vector<Index> m_root;
+  std::vector<Index> m_carrier;
   // hold_contacts_at_tick_end's scratch: the islands of coupled dynamic bodies, and per contact point
   // the two bodies and the normal and friction impulses the passes have applied there.
   std::vector<int> m_islands;
