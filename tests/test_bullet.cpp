@@ -1210,7 +1210,7 @@ struct HangingCloth {
 // the application moves by a rigid transform T (turning its velocities with it) must be the run left
 // alone, moved by T, to the solves' round-off: every node at T x, moving with R v, the cloth's kinetic
 // energy the same. (Before, the bound row jumped 100 m with the box and the rest of the cloth stayed:
-// the hard-bound cloth then reached 1e40.)
+// a frame later the cloth moved at 4e4 m/s, 1.4e7 J of kinetic energy where the run left alone had 1 J.)
 void run_carried_by_teleport(HangingCloth::Tie tie, bool dynamic) {
   const std::string what = std::string(tie == HangingCloth::Tie::hard ? "hard-bound" : "tied by springs") +
                            (dynamic ? ", dynamic box" : ", static box");
