@@ -170,6 +170,7 @@ void Newmark::implicit_half_velocity(const StepModel& s, double dt, StepStats& s
   if (trial) m_extrapolate = result.took_alternative;
   stats.ms.cg += ms_since(t);
   stats.linear_solve = linear_solve;
+  stats.implicit_elasticity = m_implicit_elasticity;
   record_solve(result, stats.cg_iterations_step1, stats);
   keep_half_velocity(s);
 
@@ -660,6 +661,8 @@ void Newmark::process_collisions(const StepModel& s, double dt) {
     context.v = &p.v;
     context.particles = &p;
     context.bodies = &s.bodies;
+    context.body_x_n = &m_body_x_n;
+    context.body_q_n = &m_body_q_n;
     context.geometry = &s.geometry;
     context.m_constraints = &constraints;
     context.m_bodies = &s.bodies;

@@ -34,6 +34,7 @@ StepStats& StepStats::operator+=(const StepStats& o) {
   cg_residual = std::max(cg_residual, o.cg_residual);
   cg_converged = cg_converged && o.cg_converged;
   linear_solve = linear_solve || o.linear_solve;
+  implicit_elasticity = implicit_elasticity || o.implicit_elasticity;
   mapped_impulse += o.mapped_impulse;
   ms += o.ms;
   return *this;
@@ -509,20 +510,98 @@ double System::stable_dt() {
   return dt;
 }
 
-StepStats System::advance(double frame_dt) {
-  if (!(std::isfinite(frame_dt) && frame_dt > 0.0))
-    fail("advance: frame dt ", frame_dt, " must be positive and finite");
-  validate(m_step_settings);  // before cfl and max_substeps are used below
-  const double limit = m_step_settings.cfl * stable_dt();
-  const double count = std::ceil(frame_dt / limit);
-  if (count > m_step_settings.max_substeps)
-    fail("advance: the stable step ", limit, " s needs ", count, " substeps for a frame of ", frame_dt,
-         " s, more than max_substeps = ", m_step_settings.max_substeps);
-  const int substeps = std::max(1, static_cast<int>(count));
+int System::substeps_for(double frame_dt, double limit) const {
+  const double count = std::ceil(frame_dt / (m_step_settings.cfl * limit));
+  if (count > m_step_settings.max_substeps) return 0;
+  return std::max(1, static_cast<int>(count));
+}
+
+int System::turn_substeps(double frame_dt) {
+  // What linearising at each step's start misses over a step of dt is dt^2 S (Force::turn_work_rate);
+  // it is kept below turn_work_per_implicit_step of the scene's kinetic and elastic energy E:
+  // substeps = ceil(frame_dt sqrt(S / (eta E))).
+  double rate = 0.0;
+  for (const auto& f : m_forces) rate += f->turn_work_rate(m_particles.x, m_particles.v);
+  if (!(rate > 0.0)) return 1;
+  double energy = kinetic_energy();
+  for (const auto& f : m_forces) energy += f->potential_energy(m_particles.x);
+  const double allowed = m_step_settings.turn_work_per_implicit_step * energy;
+  const double count = std::ceil(frame_dt * std::sqrt(rate / allowed));
+  if (!(count <= m_step_settings.max_substeps)) return m_step_settings.max_substeps;
+  return std::max(1, static_cast<int>(count));
+}
+
+StepStats System::run_substeps(double frame_dt, int substeps) {
   const double dt = frame_dt / substeps;
   StepStats total;
   for (int i = 0; i < substeps; ++i) total += step(dt);
   return total;
+}
+
+StepStats System::advance(double frame_dt) {
+  if (!(std::isfinite(frame_dt) && frame_dt > 0.0))
+    fail("advance: frame dt ", frame_dt, " must be positive and finite");
+  validate(m_step_settings);  // before cfl and max_substeps are used below
+  const auto too_many = [&](double limit) {
+    fail("advance: the stable step ", m_step_settings.cfl * limit, " s needs ",
+         std::ceil(frame_dt / (m_step_settings.cfl * limit)), " substeps for a frame of ", frame_dt,
+         " s, more than max_substeps = ", m_step_settings.max_substeps);
+  };
+  const double limit = stable_dt();  // as set
+  const int as_set = substeps_for(frame_dt, limit);
+  if (!m_step_settings.automatic) {
+    if (as_set == 0) too_many(limit);
+    return run_substeps(frame_dt, as_set);
+  }
+  // The turn bound of implicit elasticity, from the state at the frame's start.
+  const int turn_substeps = this->turn_substeps(frame_dt);
+  if (m_step_settings.implicit_elasticity) {  // the user's choice, bounded by the turn
+    if (as_set == 0) too_many(limit);
+    return run_substeps(frame_dt, std::max(as_set, turn_substeps));
+  }
+  // Implicit elasticity: forces that can offer a definite differential stop limiting the substep.
+  double implicit_limit = kInfinity;
+  for (std::size_t k = 0; k < m_forces.size(); ++k)
+    if (!m_forces[k]->can_offer_definite_differentials())
+      implicit_limit = std::min(implicit_limit, m_force_stable_dt[k]);
+  const int implicit = std::max(substeps_for(frame_dt, implicit_limit), turn_substeps);
+  // Costs in force evaluations: one per substep plus its CG iterations (a CG product visits the
+  // elements as a force evaluation does), from the counts last seen (a guess of a few tens of
+  // iterations for an implicit step never tried). A switch needs a clear gain (hysteresis), so a
+  // frame on the edge does not alternate.
+  const double explicit_cost = as_set == 0 ? kInfinity : as_set * (1.0 + m_explicit_iterations);
+  const double implicit_cost =
+      implicit == 0 ? kInfinity : implicit * (1.0 + (m_implicit_iterations > 0.0 ? m_implicit_iterations : 30.0));
+  const double hysteresis = 1.25;
+  const bool go_implicit = as_set > 0 && as_set <= kCheapExplicitSubsteps
+                               ? false
+                               : (m_chose_implicit ? implicit_cost < hysteresis * explicit_cost
+                                                   : hysteresis * implicit_cost < explicit_cost);
+  const auto iterations = [](const StepStats& s) {
+    return double(s.cg_iterations_step1 + s.cg_iterations_step4) / std::max(1, s.substeps);
+  };
+  if (!go_implicit) {
+    if (as_set == 0) too_many(limit);
+    m_chose_implicit = false;
+    const StepStats stats = run_substeps(frame_dt, as_set);
+    m_explicit_iterations = iterations(stats);
+    return stats;
+  }
+  if (implicit == 0) too_many(implicit_limit);
+  // Implicit for this frame: the settings and the forces' offers are put back whatever happens.
+  struct Restore {
+    System& system;
+    ~Restore() {
+      system.m_step_settings.implicit_elasticity = false;
+      for (auto& f : system.m_forces) f->offer_definite_differentials(false);
+    }
+  } restore{*this};
+  m_step_settings.implicit_elasticity = true;
+  for (auto& f : m_forces) f->offer_definite_differentials(true);
+  m_chose_implicit = true;
+  const StepStats stats = run_substeps(frame_dt, implicit);
+  m_implicit_iterations = iterations(stats);
+  return stats;
 }
 
 // ---- diagnostics -------------------------------------------------------------------------------

@@ -180,15 +180,13 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
         continue;
     double d;
     Vec3 n;
-    if (!signed_distance(objects[o]->getCollisionShape(), objects[o]->getWorldTransform(), x.col(i), thickness, d, n))
-      continue;
+    if (!signed_distance(objects[o]->getCollisionShape(), m_frame[o], x.col(i), thickness, d, n)) continue;
     if (d < 0.0 && d < phi) {
       // Entered this step: push back out through the side the particle came from, so a thin body
       // is not crossed by projecting to its far face.
       double d_n;
       Vec3 n_n;
-      if (signed_distance(objects[o]->getCollisionShape(), objects[o]->getWorldTransform(), c.x_n->col(i), thickness,
-                          d_n, n_n) &&
+      if (signed_distance(objects[o]->getCollisionShape(), m_frame_n[o], c.x_n->col(i), thickness, d_n, n_n) &&
           d_n > 0.0) {
         n = n_n;
         d = d_n + n_n.dot(x.col(i) - c.x_n->col(i));
@@ -203,19 +201,50 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
   return hit;
 }
 
-void BulletCollisions::process(CollisionContext& c) {
+// The particles' predicted positions x~^{n+1} are tested against each body where the step puts it
+// at t^{n+1}, and where they came from (x^n) against the body at t^n: testing against Bullet's pose
+// at the tick's start instead leaves a cloth riding on a moving body |v| (t - t_tick) off its face and
+// projects particles out of where a turning body was, which feeds energy into the cloth.
+void BulletCollisions::place_objects(const CollisionContext& c) {
   const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
   const int count = objects.size();
+  m_frame_n.resize(static_cast<std::size_t>(count));
+  m_frame.resize(static_cast<std::size_t>(count));
   m_aabb_min.resize(static_cast<std::size_t>(count));
   m_aabb_max.resize(static_cast<std::size_t>(count));
-  const double thickness = m_settings.thickness;
-  const btScalar t = static_cast<btScalar>(thickness);
+  const btScalar t = static_cast<btScalar>(m_settings.thickness);
   const btVector3 pad{t, t, t};
+  const btScalar since_tick = static_cast<btScalar>(c.time - m_tick_start);
   for (int o = 0; o < count; ++o) {
-    objects[o]->getCollisionShape()->getAabb(objects[o]->getWorldTransform(), m_aabb_min[o], m_aabb_max[o]);
+    const btCollisionObject* object = objects[o];
+    const btTransform& pose = object->getWorldTransform();
+    m_frame_n[o] = m_frame[o] = pose;
+    const btRigidBody* rigid = btRigidBody::upcast(object);
+    if (m_bullet_frame && rigid && m_rigid_particles) {
+      const auto found = m_rigid_particles->find(object);
+      if (found != m_rigid_particles->end() && found->second < c.bodies->size()) {
+        const Index b = found->second;
+        m_frame_n[o] = m_bullet_frame(b, c.body_x_n->col(b), (*c.body_q_n)[static_cast<std::size_t>(b)]);
+        m_frame[o] = m_bullet_frame(b, c.bodies->x.col(b), c.bodies->q[static_cast<std::size_t>(b)]);
+      } else if (!rigid->isStaticObject()) {
+        // Bullet moves it through the tick with its velocities (a kinematic body with those its
+        // motion state gives the tick).
+        btTransformUtil::integrateTransform(pose, rigid->getLinearVelocity(), rigid->getAngularVelocity(), since_tick,
+                                            m_frame_n[o]);
+        btTransformUtil::integrateTransform(pose, rigid->getLinearVelocity(), rigid->getAngularVelocity(),
+                                            since_tick + static_cast<btScalar>(c.dt), m_frame[o]);
+      }
+    }
+    object->getCollisionShape()->getAabb(m_frame[o], m_aabb_min[o], m_aabb_max[o]);
     m_aabb_min[o] -= pad;
     m_aabb_max[o] += pad;
   }
+}
+
+void BulletCollisions::process(CollisionContext& c) {
+  const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
+  const double thickness = m_settings.thickness;
+  place_objects(c);
   m_deepest = 0.0;
   m_contacts = 0;
   m_dynamic_contacts.clear();
@@ -245,7 +274,7 @@ void BulletCollisions::process(CollisionContext& c) {
     Vec3 v_body = Vec3::Zero();
     btVector3 arm(0, 0, 0);
     if (rigid) {
-      arm = to_bullet(x.col(i)) - rigid->getCenterOfMassPosition();
+      arm = to_bullet(x.col(i)) - m_frame[hit].getOrigin();
       if (particle_body >= 0) {
         // The particle's twist is its centre's (the merged one when bound mass is carried), at the
         // predicted frame, from which apply_body_impulse takes its lever too.

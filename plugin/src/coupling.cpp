@@ -678,6 +678,17 @@ StepStats Coupling::tick(double dt) {
   m_tick_start_x = m_system.particles().x;
   m_tick_start_v = m_system.particles().v;
   m_tick_start_bodies = m_system.rigid_bodies();
+  if (m_collisions)
+    m_collisions->set_motion(
+        [this](Index b, const Vec3& x, const Quat& q) {
+          // Bullet's frame on the merged body (as in hand_over_position_velocity): q q_rel^-1, x - R d.
+          const Quat turn = q * m_merged_turn[static_cast<std::size_t>(b)].conjugate();
+          const Vec3 centre = x - turn * Vec3(m_merged_offset.col(b));
+          return btTransform(
+              btQuaternion(btScalar(turn.x()), btScalar(turn.y()), btScalar(turn.z()), btScalar(turn.w())),
+              to_bullet(centre));
+        },
+        m_system.time());
   try {
     m_last = m_system.advance(dt);  // substeps when the tick exceeds the elastic forces' stable step
   } catch (...) {

@@ -76,7 +76,9 @@ class CollisionContext {
   Vectors3* x = nullptr;          ///< in: x~^{n+1}, out: x^{n+1}
   Vectors3* v = nullptr;          ///< in: v^n, out: v~^n
   const Particles* particles = nullptr;
-  const RigidBodyParticles* bodies = nullptr;  ///< at the predicted frames (x~_c^{n+1}, q~^{n+1})
+  const RigidBodyParticles* bodies = nullptr;   ///< at the predicted frames (x~_c^{n+1}, q~^{n+1})
+  const Vectors3* body_x_n = nullptr;           ///< the bodies' centres of mass at t^n
+  const std::vector<Quat>* body_q_n = nullptr;  ///< their orientations at t^n
   const CollisionGeometry* geometry = nullptr;
 
   /// Hands step 4 a velocity constraint (checked after every source has run).

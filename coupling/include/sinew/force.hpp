@@ -88,6 +88,21 @@ class Force {
     return kInfinity;
   }
 
+  /// What linearising the force at a step's start misses over the step, per squared step [J/s^2]: the
+  /// force's elements turning at x with velocities v, summed. 0 when they have no direction to turn.
+  virtual double turn_work_rate(const Vectors3& x, const Vectors3& v) const {
+    (void)x, (void)v;
+    return 0.0;
+  }
+
+  /// Whether the force can offer a definite differential when asked to (offer_definite_differentials)
+  /// although its own settings keep it explicit.
+  virtual bool can_offer_definite_differentials() const { return has_definite_differentials(); }
+  /// Asks the force to offer its definite differential (has_definite_differentials() turns true)
+  /// whatever its own settings say, or gives the choice back to them. StepSettings::automatic asks
+  /// between steps when it treats elasticity implicitly.
+  virtual void offer_definite_differentials(bool offer) { (void)offer; }
+
   /// The blocks of D + b K+ for the preconditioners, when the force offers them (see
   /// implicit_blocks.hpp for what the step does without them). A force that offers them usually
   /// derives from ImplicitBlocks too and returns this.

@@ -35,6 +35,9 @@ struct StepStats {
   /// Every solve reached the tolerance, and every body's turn agreed with its arms to it.
   bool cg_converged = true;
   bool linear_solve = false;  ///< false when the scene has no implicit term (diagonal solve)
+  /// Some step treated elasticity implicitly (StepSettings::implicit_elasticity, or System::advance's
+  /// automatic choice).
+  bool implicit_elasticity = false;
   /// dt * sum of the forces mapped onto soft-bound particles in step 4: the momentum the mapping adds
   /// to the system (section 3: soft particles duplicate mass, and the mapping duplicates momentum).
   Vec3 mapped_impulse = Vec3::Zero();

@@ -119,6 +119,19 @@ struct StepSettings {
   /// advance() throws rather than take more substeps than this in one frame: a stable step that
   /// small usually means a stiffness or mass set wrongly, not a scene worth grinding through.
   int max_substeps = 100000;
+  /// advance() chooses the scheme of each frame from the scene (System::advance says how): explicit
+  /// elasticity while it needs few substeps, else implicit elasticity (dihedral bending included) when
+  /// that is cheaper, in substeps short enough that the elements turn little within one
+  /// in one (turn_work_per_implicit_step). On, the settings above are where the choice starts: implicit_elasticity set
+  /// by the user is kept (and its substeps bounded the same way). Off, advance() runs exactly the settings above.
+  /// System::step runs the settings above either way.
+  bool automatic = true;
+  /// With implicit elasticity the solves linearise the elastic forces where the step starts; a
+  /// stretched spring that turns within the step is then pulled along a stale direction, which feeds
+  /// energy into a spinning cloth. advance() under `automatic` takes substeps short enough that this
+  /// missed work (Force::turn_work_rate times the squared step) is at most this fraction of the
+  /// scene's kinetic and elastic energy in each step.
+  double turn_work_per_implicit_step = 0.01;
   /// Step 1 takes each body's inertia at its half-step orientation, R(theta/2) I R(theta/2)^T, which
   /// gives w^{n+1/2} ~ w + dt/2 I^-1 (L x w): the torque-free drift of an asymmetric body's angular
   /// velocity, to second order. Off: the inertia at t^n (first order).
@@ -254,8 +267,18 @@ class System {
   // ---- time stepping -------------------------------------------------------------------------
   /// One Newmark step of size dt.
   StepStats step(double dt);
-  /// Advances by frame_dt in equal substeps no larger than cfl * stable_dt().
+  /// Advances by frame_dt in equal substeps. With StepSettings::automatic off: substeps no larger than
+  /// cfl * stable_dt(). On (the default), the scheme of the frame is chosen from the scene:
+  ///  - explicit elasticity (as set) while it needs at most kCheapExplicitSubsteps substeps;
+  ///  - else implicit elasticity (forces that can offer a definite differential do, bending
+  ///    included), in substeps bounded by the forces that stay explicit and by the turn of the
+  ///    elements (StepSettings::turn_work_per_implicit_step), when its cost is lower: each scheme's
+  ///    cost per substep is one force evaluation plus its CG iterations, counted from the last frames
+  ///    that used it (deterministic: counts, not clocks);
+  ///  - implicit_elasticity set by the user: as set, in substeps bounded by the turn the same way.
   StepStats advance(double frame_dt);
+  /// advance() stays explicit up to this many substeps per frame.
+  static constexpr int kCheapExplicitSubsteps = 2;
   /// The explicit elastic forces' stable step (binding springs and implicitly treated forces impose none).
   double stable_dt();
   double time() const { return m_time; }
@@ -322,6 +345,18 @@ class System {
   VectorXd m_inverse_effective_mass;      // per row, 0 for infinite mass
   VectorXd m_effective_mass;              // per row, +inf for kinematic, m_e for bound rows
   std::vector<double> m_force_stable_dt;  // Force::stable_dt per force at these masses (stable_dt())
+  // advance() under StepSettings::automatic: CG iterations per substep last seen with explicit and
+  // with implicit elasticity (the cost model), and whether the last frame chose implicit.
+  double m_explicit_iterations = 0.0;
+  double m_implicit_iterations = 0.0;
+  bool m_chose_implicit = false;
+  /// The substep count advance() runs frame_dt in, for the stable step `limit` (0 where the count
+  /// would exceed StepSettings::max_substeps: advance() then reports it).
+  int substeps_for(double frame_dt, double limit) const;
+  /// Substeps that keep implicit elasticity's linearisation error over frame_dt within
+  /// StepSettings::turn_work_per_implicit_step (advance() under StepSettings::automatic).
+  int turn_substeps(double frame_dt);
+  StepStats run_substeps(double frame_dt, int substeps);
   bool m_finalized = false;
   bool m_topology_changed = false;  // the topology changed since set-up: redo it before the next step
   std::uint64_t m_set_ups = 0;

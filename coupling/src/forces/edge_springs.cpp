@@ -284,6 +284,24 @@ double EdgeSprings::stable_dt(const VectorXd& m_eff) const {
   return omega_sq > 0.0 ? 2.0 / std::sqrt(omega_sq) : kInfinity;
 }
 
+double EdgeSprings::turn_work_rate(const Vectors3& x, const Vectors3& v) const {
+  // A spring of tension T and length l turning at rate w: over a step dt its linearised force misses
+  // the arc by l (1 - cos(w dt)) ~ l (w dt)^2 / 2 along its direction, T l w^2 / 2 per dt^2.
+  double sum = 0.0;
+  const double k = m_settings.stiffness;
+  for (std::size_t e = 0; e < m_edges.size(); ++e) {
+    const Vec3 dx = x.col(m_edges[e][1]) - x.col(m_edges[e][0]);
+    const double length = dx.norm();
+    const double tension = k * (length - m_rest_length[Index(e)]);
+    if (!(tension > 0.0)) continue;
+    const Vec3 d = dx / length;
+    const Vec3 dv = v.col(m_edges[e][1]) - v.col(m_edges[e][0]);
+    const double rate_sq = (dv - d * d.dot(dv)).squaredNorm() / (length * length);
+    sum += 0.5 * tension * length * rate_sq;
+  }
+  return sum;
+}
+
 Index EdgeSprings::remove_elements_touching(std::span<const std::uint8_t> removed) {
   return detail::rebuild_without(*this, m_edges, removed, m_rest_x, m_settings);
 }

@@ -60,7 +60,9 @@ class DihedralBending final : public Force, public ImplicitBlocks {
   void add_elastic_differentials(const Vectors3& dx, Vectors3& df) const override;
   void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
   bool has_damping() const override { return m_settings.damping > 0.0; }
-  bool has_definite_differentials() const override { return m_settings.implicit; }
+  bool has_definite_differentials() const override { return m_settings.implicit || m_offered; }
+  bool can_offer_definite_differentials() const override { return true; }
+  void offer_definite_differentials(bool offer) override { m_offered = offer; }
   void set_implicit(bool implicit) override { m_implicit = implicit; }
   void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
   double stable_dt(const VectorXd& m_eff) const override;
@@ -96,6 +98,7 @@ class DihedralBending final : public Force, public ImplicitBlocks {
   std::vector<double> m_delta;                          ///< theta - theta0 per hinge at the cached state
   bool m_grad_valid = false;                            ///< m_grad, m_delta, m_node_ggt hold the cached state's values
   // Position state: hinge vertex positions (for the differential) and d theta / dx (for damping).
+  bool m_offered = false;              // offer_definite_differentials: implicit whatever m_settings says
   bool m_implicit = false;             // set_implicit: the angle gradients are needed even without damping
   Vectors3 m_x;                        // positions of the cached state (a plain copy: cheaper than per-hinge stencils)
   mutable ScatterGather<4> m_scatter;  // per-hinge forces on its four nodes, gathered per node

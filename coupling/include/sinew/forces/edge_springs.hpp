@@ -34,6 +34,7 @@ class EdgeSprings final : public Force, public ImplicitBlocks {
   bool has_definite_differentials() const override { return true; }
   void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
   double stable_dt(const VectorXd& m_eff) const override;
+  double turn_work_rate(const Vectors3& x, const Vectors3& v) const override;
   bool can_remove_elements() const override { return true; }
   Index remove_elements_touching(std::span<const std::uint8_t> removed) override;
   /// Every block: scalar and 3x3 diagonal, pair blocks one edge at a time.

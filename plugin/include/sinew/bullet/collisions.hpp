@@ -6,6 +6,7 @@
 
 #include <btBulletDynamicsCommon.h>
 
+#include <functional>
 #include <string_view>
 #include <unordered_map>
 #include <vector>
@@ -45,6 +46,18 @@ class BulletCollisions final : public CollisionSource {
   BulletCollisions(btCollisionWorld* world, const CollisionSettings& settings,
                    const std::unordered_map<const btCollisionObject*, Index>* rigid_particles);
   std::string_view name() const override { return "bullet shapes"; }
+  /// Bullet's frame (centre of mass, world) of the body that rigid-body particle `particle` stands
+  /// for, when the particle is at centre x with orientation q.
+  using BulletFrame = std::function<btTransform(Index particle, const Vec3& x, const Quat& q)>;
+  /// Where each step meets the bodies: a body with a rigid-body particle at the particle's frames at
+  /// t^n and at the step's prediction (its merged frame turned into Bullet's by `frame`); any other
+  /// object at its pose at `tick_start` (the time of the tick's start, when Bullet's poses were read)
+  /// moved on with its velocities to the step's start and end. Without a call: Bullet's poses as
+  /// they are.
+  void set_motion(BulletFrame frame, double tick_start) {
+    m_bullet_frame = std::move(frame);
+    m_tick_start = tick_start;
+  }
   void process(CollisionContext& context) override;
   /// A particle within the thickness of a dynamic body in the last process() call, with the normal
   /// step 3 used (the coupling holds these at the end of the tick: Coupling::hold_contacts_at_tick_end).
@@ -68,7 +81,13 @@ class BulletCollisions final : public CollisionSource {
   /// normal (taken from the side the particle came from when it entered this step). -1 when none.
   int closest_object(const CollisionContext& c, Index i, double& phi, Vec3& normal) const;
 
+  /// Fills m_frame_n and m_frame (object o at t^n and at the step's prediction) and the AABBs.
+  void place_objects(const CollisionContext& c);
+
   btCollisionWorld* m_world;
+  BulletFrame m_bullet_frame;
+  double m_tick_start = 0.0;
+  std::vector<btTransform> m_frame_n, m_frame;
   CollisionSettings m_settings;
   const std::unordered_map<const btCollisionObject*, Index>* m_rigid_particles;
   std::vector<btVector3> m_aabb_min, m_aabb_max;
