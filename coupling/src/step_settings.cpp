@@ -17,6 +17,8 @@ void validate(const StepSettings& s) {
   if (!(s.max_rotation_per_step > 0.0))
     fail("step settings: max_rotation_per_step = ", s.max_rotation_per_step, ", must be positive (or infinite)");
   if (s.rotation_iterations < 1) fail("step settings: rotation_iterations = ", s.rotation_iterations, ", must be >= 1");
+  if (!(s.divergence_factor >= 0.0))
+    fail("step settings: divergence_factor = ", s.divergence_factor, ", must be >= 0 (0: no divergence check)");
   if (s.multigrid && !s.jacobi_preconditioner)
     fail("step settings: multigrid needs jacobi_preconditioner (block Jacobi is its finest level)");
 }
