@@ -47,17 +47,23 @@ void DivergenceCheck::begin_step(const StepModel& s, const StepRecord& r, double
   const double extent = (hi - lo).allFinite() ? (hi - lo).norm() : 0.0;
   const double floor_speed = 1e-3 * extent / dt;
   m_energy_floor = 0.5 * mass * floor_speed * floor_speed;
+  m_start_springs = s.springs.potential_energy(s.particles.x);
   if (!m_started) {
     // The scene's energy at the start: kinetic and elastic (gravity enters as work, step by step).
-    double elastic = s.springs.potential_energy(s.particles.x);
+    double elastic = m_start_springs;
     for (const auto& f : s.forces) elastic += f->potential_energy(s.particles.x);
     m_budget = m_start_kinetic + std::max(elastic, 0.0);
     m_peak = m_budget;
     m_end_kinetic = m_start_kinetic;
+    m_end_springs = m_start_springs;
     m_started = true;
   }
-  // Kinetic energy added between steps (new velocities from a rigid solver, an impulse) is input.
-  m_pending = m_budget + std::max(m_start_kinetic - m_end_kinetic, 0.0);
+  // Energy added between steps is input: kinetic (new velocities from a rigid solver, an impulse) and
+  // the binding springs' (a spring switched on or moved to new ends, as a viewer's mouse spring is;
+  // an end moved). They are few, so their energy is cheap to take at every step's start and end; the
+  // elastic forces' would cost a force evaluation.
+  m_injected = std::max(m_start_kinetic - m_end_kinetic, 0.0) + std::max(m_start_springs - m_end_springs, 0.0);
+  m_pending = m_budget + m_injected;
 }
 
 void DivergenceCheck::end_step(const StepModel& s, const StepRecord& r, long step, Vectors3& scratch,
@@ -99,7 +105,7 @@ void DivergenceCheck::end_step(const StepModel& s, const StepRecord& r, long ste
   const double budget = m_pending + gravity_work + input_work + std::max(collision_gain, 0.0);
   // Against the largest budget so far: a pendulum at the top of its swing has all its energy as
   // height, and the signed budget (its kinetic energy then) is close to zero.
-  const double peak = std::max(m_peak + std::max(m_start_kinetic - m_end_kinetic, 0.0), budget);
+  const double peak = std::max(m_peak + m_injected, budget);
   const double allowed = std::max(peak, m_energy_floor);
 
   // The item whose kinetic energy is the largest share of what it is allowed.
@@ -137,6 +143,7 @@ void DivergenceCheck::end_step(const StepModel& s, const StepRecord& r, long ste
     m_budget = budget;
     m_peak = peak;
     m_end_kinetic = end_kinetic;
+    m_end_springs = s.springs.potential_energy(p.x);
     return;
   }
 

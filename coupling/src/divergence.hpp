@@ -1,33 +1,39 @@
 // Early divergence detection for the Newmark step (internal to sinew::Newmark).
 //
-// A blow-up shows as a non-finite value only once it overflows, hundreds of steps after it starts
-// (an explicit cloth at three times its stable step grows about thirtyfold a step, from round-off).
-// This check stops it within a few steps, naming the particle or body, against a bound from the
-// scene: an energy budget.
+// A blow-up shows as a non-finite value only once it overflows, tens to thousands of steps after it
+// starts (an explicit cloth at three times its stable step grows about fifteenfold a step). This
+// check stops it within a few steps, naming the particle or body, against a bound from the scene:
+// an energy budget.
 //
-// The budget E_b is the scene's energy at the start (kinetic + elastic, binding springs included)
-// plus, step by step, the work its inputs can do: gravity (signed: it is a potential), the applied
-// forces and torques on the bodies, the kinematic particles and bodies moving against the forces on
-// them, kinetic energy the collision sources add in step 3, and kinetic energy the caller adds
-// between steps (a rigid solver handing bodies new velocities); all but gravity counted in absolute
-// value, so the budget overestimates and never undercounts what a stable step can reach. A passive
-// scene's energy stays below E_b; an active one's too, to within the share of the inputs the budget
-// cannot see (implicit damping against a moving kinematic parent, positions moved between steps):
-// for the first each item is also allowed the kinetic energy of moving as fast as the fastest
-// kinematic point (a cloth dragged at speed V reaches about V), and a generous factor covers the
-// rest and an integrator's modest gains.
+// The budget E_b is the scene's energy at the first step (kinetic + elastic, binding springs
+// included) plus, step by step, the work its inputs can do:
+//   - gravity, signed (it is a potential);
+//   - the applied forces and torques on the bodies, along the step's displacement and turn;
+//   - the kinematic particles and bodies, moving against the forces on them (step 4's);
+//   - kinetic energy the collision sources add in step 3;
+//   - energy the caller adds between steps: kinetic (a rigid solver's new velocities, an impulse)
+//     and the binding springs' (a spring switched on or moved to new ends, as a viewer's mouse
+//     spring is). The springs are few, so their energy is cheap to take at each step's start and
+//     end; the elastic forces' would cost a force evaluation, so positions moved between steps are
+//     not counted (a generous factor has to cover them).
+// All but gravity count in absolute value, so the budget overestimates. The implicit terms between
+// a kinematic parent and its neighbours (damping, the implicit part of a binding spring) are not in
+// step 4's forces; for them each item may also have the kinetic energy of moving as fast as the
+// fastest kinematic point (a cloth dragged at speed V reaches about V).
 //
 // A step diverges when one item's kinetic energy exceeds StepSettings::divergence_factor times
 //   max_k E_b(t_k) + 1/2 m V_kin^2 (+ 1/2 tr(I) W_kin^2 for a body),
-// the largest budget so far (the signed gravity term takes a pendulum's budget to its kinetic energy,
-// near zero at the top of each swing, where integration error alone would then exceed it),
-// V_kin, W_kin the largest kinematic point speed and angular velocity. The rejected alternative, "the
-// energy must not grow", fires on every active scene; a test on the growth rate of the velocities
-// alone fires on transients from rest (a stiff spring released: its velocity change doubles in the
-// second step) unless given a floor, which is this budget again. Since an instability grows
-// geometrically, how generous the factor is costs only a logarithmic delay: log(factor) / log(growth)
-// steps. A budget of zero (a scene at rest without gravity) would fire on round-off, so E_b is at
-// least 1/2 M (1e-3 L / dt)^2: a speed that crosses a thousandth of the scene's extent L each step.
+// V_kin, W_kin the largest kinematic point speed and angular velocity, and max_k the largest budget
+// so far: with gravity signed, a pendulum's budget is its kinetic energy, near zero at the top of
+// each swing, where integration error alone would exceed it. A budget of zero (a scene at rest
+// without gravity) would fire on round-off, so the budget is at least 1/2 M (1e-3 L / dt)^2, M the
+// dynamic mass: a speed that crosses a thousandth of the scene's extent L each step.
+//
+// Rejected: "the energy must not grow" fires on every active scene; a test on the growth rate of the
+// velocities alone fires on transients from rest (a stiff spring released: its velocity change
+// doubles in the second step) unless given a floor, which is this budget again, and misses a
+// growth of a few percent a step. An instability grows geometrically, so a generous factor costs a
+// delay of only log(factor) / log(growth per step) steps.
 #pragma once
 
 #include "step_model.hpp"
@@ -66,6 +72,9 @@ class DivergenceCheck {
   double m_pending = 0.0;        // E_b at this step's start (with what the caller added)
   double m_end_kinetic = 0.0;    // kinetic energy at the end of the last accepted step [J]
   double m_start_kinetic = 0.0;  // this step's, at its start
+  double m_end_springs = 0.0;    // the binding springs' energy at the end of the last accepted step [J]
+  double m_start_springs = 0.0;  // and at this step's start
+  double m_injected = 0.0;       // energy the caller added between the last step and this one [J]
   double m_energy_floor = 0.0;   // 1/2 M (1e-3 L / dt)^2 for this step
 };
 
