@@ -24,6 +24,7 @@ void Newmark::allocate(const StepModel& s) {
   m_cg.resize(n, r);
   for (Vectors3* a : {&m_x_n, &m_v_n, &m_x_np1, &m_v_tilde_n, &m_v_half, &m_f, &m_g, &m_bound_force}) a->setZero(3, n);
   m_wrench.setZero(6, r);
+  m_scratch_wrench.setZero(6, r);
   m_twist_half.setZero(6, r);
   for (Vectors3* a : {&m_body_x_n, &m_body_v_n, &m_body_w_n, &m_body_L_n, &m_body_x_np1}) a->setZero(3, r);
   m_body_q_n.assign(static_cast<std::size_t>(r), Quat::Identity());
@@ -69,11 +70,12 @@ StepStats Newmark::step(const StepModel& s, double dt) {
   stats.substeps = 1;
   stats.dt = dt;
   m_dt = dt;
-  check_finite(s, "the state at the step's start");
+  check_finite(s, "the state at the step's start", false);
   save_state(s);
-  // A step that throws (a non-finite value, a bad collision constraint, a stalled solve) leaves the
-  // state of its start, so the caller can change what diverged and step again.
+  // A step that throws (a non-finite value, divergence, a bad collision constraint, a stalled solve)
+  // leaves the state of its start, so the caller can change what diverged and step again.
   try {
+    m_divergence.begin_step(s, record(), dt);
     m_constraints.prepare_joints(s.joint_rows, s.bodies);
 
     auto t = Clock::now();
@@ -100,6 +102,9 @@ StepStats Newmark::step(const StepModel& s, double dt) {
     extrapolate_velocity(s);
     check_finite(s, "step 5 (extrapolate velocity)");
     stats.ms.extrapolate_velocity = ms_since(t);
+
+    // Divergence: some item's kinetic energy far above the scene's energy budget (divergence.hpp).
+    m_divergence.end_step(s, record(), m_step_count, m_g, m_scratch_wrench);
   } catch (...) {
     restore_start_state(s);
     throw;
@@ -857,21 +862,7 @@ SolveResult Newmark::solve(const StepModel& s, const SolveCoefficients& k, bool 
     // Which term turns finite velocities into non-finite forces: each force's implicit products, and
     // the binding springs', on a finite probe (a NaN coefficient set where nothing validated it).
     m_u.setOnes();
-    std::string culprit;
-    for (const auto& f : s.forces) {
-      m_g.setZero();
-      f->add_implicit_products(m_u, k.h, m_g);
-      if (!m_g.allFinite()) {
-        culprit = "; force '" + std::string(f->name()) + "' gives non-finite forces for finite velocities";
-        break;
-      }
-    }
-    if (culprit.empty()) {
-      m_g.setZero();
-      s.springs.add_linear_forces(m_u, 1.0, k.h, m_g);
-      if (!m_g.allFinite()) culprit = "; the binding springs give non-finite forces for finite velocities";
-    }
-    fail(e.what(), culprit);
+    fail(e.what(), non_finite_culprit(s, s.particles.x, m_u, k, m_g));
   }
 }
 
@@ -904,21 +895,28 @@ void Newmark::restore_start_state(const StepModel& s) {
   s.hard.update_rigid_offsets(s.bodies);
 }
 
-// Bodies first: a body's bad state reaches the points bound to it, and the body is what to name.
-void Newmark::check_finite(const StepModel& s, const char* phase) const {
+// Bodies first: a body's bad state reaches the points bound to it, and the body is what to name. With
+// `culprit`, the force (or the binding springs) that gives non-finite forces at the step's finite
+// start, x^n and v^n: a NaN coefficient that nothing validated, which the state only shows.
+void Newmark::check_finite(const StepModel& s, const char* phase, bool culprit) {
+  auto named = [&] {
+    if (!culprit) return std::string();
+    const double h = 0.5 * m_dt;
+    return non_finite_culprit(s, m_x_n, m_v_n, {h, h, m_implicit_elasticity ? h : 0.0}, m_g);
+  };
   const auto& bodies = s.bodies;
   for (Index b = 0; b < m_unknowns.r; ++b)
     if (!all_finite(bodies.x.col(b)) || !all_finite(bodies.v.col(b)) || !all_finite(bodies.w.col(b)) ||
         !std::isfinite(bodies.q[b].norm()))
-      fail("Newmark step ", m_step_count, ", ", phase, ": rigid body ", b, " has a non-finite state");
+      fail("Newmark step ", m_step_count, ", ", phase, ": rigid body ", b, " has a non-finite state", named());
   const auto& p = s.particles;
   for (Index i = 0; i < m_unknowns.n; ++i) {
     if (!all_finite(p.x.col(i)))
       fail("Newmark step ", m_step_count, ", ", phase, ": particle ", i, " has a non-finite position (",
-           p.x.col(i).transpose(), ")");
+           p.x.col(i).transpose(), ")", named());
     if (!all_finite(p.v.col(i)))
       fail("Newmark step ", m_step_count, ", ", phase, ": particle ", i, " has a non-finite velocity (",
-           p.v.col(i).transpose(), ")");
+           p.v.col(i).transpose(), ")", named());
   }
 }
 

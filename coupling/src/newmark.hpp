@@ -9,6 +9,7 @@
 
 #include "cg.hpp"
 #include "constraints.hpp"
+#include "divergence.hpp"
 #include "implicit_system.hpp"
 #include "preconditioner.hpp"
 #include "step_model.hpp"
@@ -76,7 +77,13 @@ class Newmark {
   bool needs_linear_solve(const StepModel& s) const {
     return m_has_damping || s.springs.size() > 0 || m_implicit_elasticity || m_constraints.has_joints();
   }
-  void check_finite(const StepModel& s, const char* phase) const;
+  /// Throws naming the phase and the first non-finite body or particle, and the force that gives
+  /// non-finite values at the step's finite start (with `culprit`; after step 1 only).
+  void check_finite(const StepModel& s, const char* phase, bool culprit = true);
+  /// What the divergence check reads of the step (divergence.hpp).
+  StepRecord record() const {
+    return {m_unknowns, m_x_n, m_v_n, m_v_tilde_n, m_f, m_wrench, m_body_x_n, m_body_L_n, m_turn};
+  }
   /// Puts back the positions, velocities and frames save_state kept (after a step that threw).
   void restore_start_state(const StepModel& s);
   /// Throws naming `source` unless c is a valid stencil on rows with unknowns.
@@ -127,6 +134,8 @@ class Newmark {
   } m_preconditioner_key;
   bool m_has_damping = false;
   bool m_implicit_elasticity = false;  // some elastic force enters the step-1 solve
+  DivergenceCheck m_divergence;        // the energy budget each step is checked against
+  Vectors6 m_scratch_wrench;           // the divergence check's, when it names the largest force
 };
 
 }  // namespace sinew

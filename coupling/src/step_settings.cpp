@@ -20,6 +20,8 @@ void validate(const StepSettings& s) {
   if (!(std::isfinite(s.turn_work_per_implicit_step) && s.turn_work_per_implicit_step > 0.0))
     fail("step settings: turn_work_per_implicit_step = ", s.turn_work_per_implicit_step,
          ", must be positive and finite");
+  if (!(s.divergence_factor >= 0.0))
+    fail("step settings: divergence_factor = ", s.divergence_factor, ", must be >= 0 (0: no divergence check)");
   if (s.multigrid && !s.jacobi_preconditioner)
     fail("step settings: multigrid needs jacobi_preconditioner (block Jacobi is its finest level)");
 }

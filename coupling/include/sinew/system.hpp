@@ -145,6 +145,12 @@ struct StepSettings {
   /// reach): the arms make the points' step velocities their actual chords (see Newmark::set_turns).
   /// At most this many solves; StepStats::cg_converged turns false if the turn still moves.
   int rotation_iterations = 20;
+  /// A step stops as diverged (sinew::Error naming the particle or body, and the state of its start
+  /// kept) when one item's kinetic energy exceeds this many times the scene's energy budget: its
+  /// energy at the first step plus the work gravity, applied forces, kinematic motion and collisions
+  /// can have done since (coupling/README.md, "The step: five phases"). An instability grows
+  /// geometrically, so a generous factor delays the stop by a few steps only. 0 turns the check off.
+  double divergence_factor = 100.0;
 };
 /// Throws sinew::Error naming the first setting out of range; System::step and advance call it.
 void validate(const StepSettings& settings);
