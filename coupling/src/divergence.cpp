@@ -56,6 +56,7 @@ void DivergenceCheck::begin_step(const StepModel& s, const StepRecord& r, double
     m_peak = m_budget;
     m_end_kinetic = m_start_kinetic;
     m_end_springs = m_start_springs;
+    m_end_x = s.particles.x;
     m_started = true;
   }
   // Energy added between steps is input: kinetic (new velocities from a rigid solver, an impulse) and
@@ -63,6 +64,20 @@ void DivergenceCheck::begin_step(const StepModel& s, const StepRecord& r, double
   // an end moved). They are few, so their energy is cheap to take at every step's start and end; the
   // elastic forces' would cost a force evaluation.
   m_injected = std::max(m_start_kinetic - m_end_kinetic, 0.0) + std::max(m_start_springs - m_end_springs, 0.0);
+  // Positions the caller moved (a body's teleport carrying only part of a cloth, a dragged node): the
+  // elastic energy that put in, from two force evaluations, paid only when something moved by more
+  // than round-off of the scene's extent since the last step ended.
+  if (m_end_x.cols() == s.particles.x.cols()) {
+    double moved = 0.0;
+    for (Index i = 0; i < u.n; ++i)
+      if (s.particles.kind[i] != ParticleKind::removed)
+        moved = std::max(moved, (s.particles.x.col(i) - m_end_x.col(i)).lpNorm<Eigen::Infinity>());
+    if (moved > 1e-9 * std::max(extent, 1.0)) {
+      double added = 0.0;
+      for (const auto& f : s.forces) added += f->potential_energy(s.particles.x) - f->potential_energy(m_end_x);
+      m_injected += std::max(added, 0.0);
+    }
+  }
   m_pending = m_budget + m_injected;
 }
 
@@ -144,6 +159,7 @@ void DivergenceCheck::end_step(const StepModel& s, const StepRecord& r, long ste
     m_peak = peak;
     m_end_kinetic = end_kinetic;
     m_end_springs = s.springs.potential_energy(p.x);
+    m_end_x = p.x;  // allocates only when the particle count changes
     return;
   }
 

@@ -13,9 +13,9 @@
 //   - kinetic energy the collision sources add in step 3;
 //   - energy the caller adds between steps: kinetic (a rigid solver's new velocities, an impulse)
 //     and the binding springs' (a spring switched on or moved to new ends, as a viewer's mouse
-//     spring is). The springs are few, so their energy is cheap to take at each step's start and
-//     end; the elastic forces' would cost a force evaluation, so positions moved between steps are
-//     not counted (a generous factor has to cover them).
+//     spring is), and the elastic forces' where the caller moved positions (a teleported body
+//     carrying part of a cloth; one pass over the positions finds it, and only then are the forces
+//     evaluated).
 // All but gravity count in absolute value, so the budget overestimates. The implicit terms between
 // a kinematic parent and its neighbours (damping, the implicit part of a binding spring) are not in
 // step 4's forces; for them each item may also have the kinetic energy of moving as fast as the
@@ -76,6 +76,7 @@ class DivergenceCheck {
   double m_start_springs = 0.0;  // and at this step's start
   double m_injected = 0.0;       // energy the caller added between the last step and this one [J]
   double m_energy_floor = 0.0;   // 1/2 M (1e-3 L / dt)^2 for this step
+  Vectors3 m_end_x;              // particle positions at the end of the last accepted step
 };
 
 /// Kinetic energy of the dynamic particles (velocities v, 3 x N) and bodies (velocities in s,
