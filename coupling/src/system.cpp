@@ -516,19 +516,34 @@ int System::substeps_for(double frame_dt, double limit) const {
   return std::max(1, static_cast<int>(count));
 }
 
-int System::turn_substeps(double frame_dt) {
+double System::visible_energy() {
+  double energy = kinetic_energy();
+  for (const auto& f : m_forces) energy += f->potential_energy(m_particles.x);
+  return energy;
+}
+
+int System::turn_substeps(double frame_dt, double energy) {
   // What linearising at each step's start misses over a step of dt is dt^2 S (Force::turn_work_rate);
   // it is kept below turn_work_per_implicit_step of the scene's kinetic and elastic energy E:
   // substeps = ceil(frame_dt sqrt(S / (eta E))).
   double rate = 0.0;
   for (const auto& f : m_forces) rate += f->turn_work_rate(m_particles.x, m_particles.v);
   if (!(rate > 0.0)) return 1;
-  double energy = kinetic_energy();
-  for (const auto& f : m_forces) energy += f->potential_energy(m_particles.x);
   const double allowed = m_step_settings.turn_work_per_implicit_step * energy;
   const double count = std::ceil(frame_dt * std::sqrt(rate / allowed));
   if (!(count <= m_step_settings.max_substeps)) return m_step_settings.max_substeps;
   return std::max(1, static_cast<int>(count));
+}
+
+double System::scene_speed(double energy) const {
+  double mass = 0.0;
+  for (Index i = 0; i < m_particles.size(); ++i)
+    if (m_particles.kind[i] == ParticleKind::free || m_particles.kind[i] == ParticleKind::soft_spring)
+      mass += m_particles.mass[i];
+  for (Index b = 0; b < m_bodies.size(); ++b)
+    if (!m_bodies.kinematic[b]) mass += m_bodies.mass[b];
+  if (!(mass > 0.0)) return 0.0;
+  return std::sqrt(2.0 * std::max(energy, 0.0) / mass);
 }
 
 StepStats System::run_substeps(double frame_dt, int substeps) {
@@ -549,12 +564,15 @@ StepStats System::advance(double frame_dt) {
   };
   const double limit = stable_dt();  // as set
   const int as_set = substeps_for(frame_dt, limit);
-  if (!m_step_settings.automatic) {
+  const bool cheap_explicit = !m_step_settings.implicit_elasticity && as_set > 0 && as_set <= kCheapExplicitSubsteps;
+  if (!m_step_settings.automatic || cheap_explicit) {
     if (as_set == 0) too_many(limit);
+    if (cheap_explicit) m_chose_implicit = false;
     return run_substeps(frame_dt, as_set);
   }
   // The turn bound of implicit elasticity, from the state at the frame's start.
-  const int turn_substeps = this->turn_substeps(frame_dt);
+  const double energy = visible_energy();
+  const int turn_substeps = this->turn_substeps(frame_dt, energy);
   if (m_step_settings.implicit_elasticity) {  // the user's choice, bounded by the turn
     if (as_set == 0) too_many(limit);
     return run_substeps(frame_dt, std::max(as_set, turn_substeps));
@@ -573,10 +591,8 @@ StepStats System::advance(double frame_dt) {
   const double implicit_cost =
       implicit == 0 ? kInfinity : implicit * (1.0 + (m_implicit_iterations > 0.0 ? m_implicit_iterations : 30.0));
   const double hysteresis = 1.25;
-  const bool go_implicit = as_set > 0 && as_set <= kCheapExplicitSubsteps
-                               ? false
-                               : (m_chose_implicit ? implicit_cost < hysteresis * explicit_cost
-                                                   : hysteresis * implicit_cost < explicit_cost);
+  const bool go_implicit =
+      (m_chose_implicit ? implicit_cost < hysteresis * explicit_cost : hysteresis * implicit_cost < explicit_cost);
   const auto iterations = [](const StepStats& s) {
     return double(s.cg_iterations_step1 + s.cg_iterations_step4) / std::max(1, s.substeps);
   };
@@ -591,11 +607,19 @@ StepStats System::advance(double frame_dt) {
   // Implicit for this frame: the settings and the forces' offers are put back whatever happens.
   struct Restore {
     System& system;
+    double cg_tolerance;
     ~Restore() {
+      system.m_step_settings.cg_tolerance = cg_tolerance;
       system.m_step_settings.implicit_elasticity = false;
       for (auto& f : system.m_forces) f->offer_definite_differentials(false);
     }
-  } restore{*this};
+  } restore{*this, m_step_settings.cg_tolerance};
+  // Implicit elasticity is first-order accurate in the stiff modes: its error per step is far above a
+  // solve to round-off, so the solves stop at kImplicitRelativeTolerance of the scene's speed (the
+  // speed of its kinetic and elastic energy spread over its dynamic mass), or the user's tolerance
+  // where that is looser.
+  m_step_settings.cg_tolerance =
+      std::max(m_step_settings.cg_tolerance, kImplicitRelativeTolerance * scene_speed(energy));
   m_step_settings.implicit_elasticity = true;
   for (auto& f : m_forces) f->offer_definite_differentials(true);
   m_chose_implicit = true;

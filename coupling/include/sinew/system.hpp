@@ -280,11 +280,15 @@ class System {
   ///    included), in substeps bounded by the forces that stay explicit and by the turn of the
   ///    elements (StepSettings::turn_work_per_implicit_step), when its cost is lower: each scheme's
   ///    cost per substep is one force evaluation plus its CG iterations, counted from the last frames
-  ///    that used it (deterministic: counts, not clocks);
+  ///    that used it (deterministic: counts, not clocks); its solves stop at kImplicitRelativeTolerance
+  ///    of the scene's speed (scene_speed()) unless cg_tolerance is looser;
   ///  - implicit_elasticity set by the user: as set, in substeps bounded by the turn the same way.
   StepStats advance(double frame_dt);
   /// advance() stays explicit up to this many substeps per frame.
   static constexpr int kCheapExplicitSubsteps = 2;
+  /// When advance() chooses implicit elasticity, its solves stop at this fraction of the scene's speed
+  /// (or at StepSettings::cg_tolerance where that is looser).
+  static constexpr double kImplicitRelativeTolerance = 1e-4;
   /// The explicit elastic forces' stable step (binding springs and implicitly treated forces impose none).
   double stable_dt();
   double time() const { return m_time; }
@@ -361,7 +365,11 @@ class System {
   int substeps_for(double frame_dt, double limit) const;
   /// Substeps that keep implicit elasticity's linearisation error over frame_dt within
   /// StepSettings::turn_work_per_implicit_step (advance() under StepSettings::automatic).
-  int turn_substeps(double frame_dt);
+  int turn_substeps(double frame_dt, double energy);
+  /// Kinetic energy plus the elastic forces' energy (what advance()'s choice weighs against).
+  double visible_energy();
+  /// sqrt(2 E / M): E = visible_energy(), M the dynamic mass (particles and bodies).
+  double scene_speed(double energy) const;
   StepStats run_substeps(double frame_dt, int substeps);
   bool m_finalized = false;
   bool m_topology_changed = false;  // the topology changed since set-up: redo it before the next step
