@@ -7,7 +7,7 @@
 int main(int argc, char** argv) {
   using namespace sinew;
   const demos::Program program{.name = "sinew-core-demo",
-                               .flags = demos::kFrames | demos::kDt | demos::kSubsteps | demos::kGrid,
+                               .flags = demos::kFrames | demos::kDt | demos::kSubsteps | demos::kGrid | demos::kScheme,
                                .kinds = {scenes::SceneKind::core},
                                .default_scene = "hanging-cloth",
                                .default_frames = 120};

@@ -90,7 +90,7 @@ struct Files {
 int main(int argc, char** argv) {
   const demos::Program program{.name = "sinew-demo",
                                .flags = demos::kFrames | demos::kDt | demos::kSubsteps | demos::kGrid | demos::kFiles |
-                                        demos::kSize | demos::kOverlays,
+                                        demos::kSize | demos::kOverlays | demos::kScheme,
                                .kinds = {scenes::SceneKind::bullet, scenes::SceneKind::core, scenes::SceneKind::bench}};
   const demos::Options options = demos::parse_command_line(program, argc, argv);
   Files files(options);

@@ -20,6 +20,7 @@ namespace {
   if (p.flags & kSize) synopsis += " [--size WxH]";
   if (p.flags & kScreenshot) synopsis += " [--screenshot FILE]";
   if (p.flags & kOverlays) synopsis += " [--no-springs] [--no-hard] [--no-soft] [--parents]";
+  if (p.flags & kScheme) synopsis += " [--fixed-scheme]";
   std::fprintf(stderr, "%s: %s\nusage: %s\n(%s --list names the scenes)\n", p.name, problem.c_str(), synopsis.c_str(),
                p.name);
   std::exit(2);
@@ -86,6 +87,7 @@ Options parse_command_line(const Program& p, int argc, char** argv) {
     else if (arg == "--no-hard") takes(kOverlays), o.hard_bound = false;
     else if (arg == "--no-soft") takes(kOverlays), o.soft_bound = false;
     else if (arg == "--parents") takes(kOverlays), o.parents = true;
+    else if (arg == "--fixed-scheme") takes(kScheme), o.fixed_scheme = true;
     else usage(p, "unknown flag " + std::string(arg));
   }
   if (o.list) {

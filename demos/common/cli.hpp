@@ -3,7 +3,7 @@
 //
 //   <program> [SCENE] [--list] [--frames N] [--dt SECONDS | --fps F] [--substeps N] [--nx N] [--ny N]
 //             [--out DIR] [--render DIR] [--video FILE] [--size WxH] [--screenshot FILE]
-//             [--no-springs] [--no-hard] [--no-soft] [--parents]
+//             [--no-springs] [--no-hard] [--no-soft] [--parents] [--fixed-scheme]
 #pragma once
 
 #include "scene.hpp"
@@ -24,6 +24,7 @@ enum Flag : unsigned {
   kSize = 1u << 5,        ///< --size WxH [pixels]
   kScreenshot = 1u << 6,  ///< --screenshot FILE
   kOverlays = 1u << 7,    ///< --no-springs, --no-hard, --no-soft, --parents
+  kScheme = 1u << 8,      ///< --fixed-scheme: StepSettings::automatic off (the scene's settings as set)
 };
 
 struct Program {
@@ -39,8 +40,9 @@ struct Options {
   std::string scene;
   bool list = false;  ///< --list: print the scenes and exit
   int frames = 0;
-  double dt = 0.0;   ///< 0: the scene's own frame
-  int substeps = 0;  ///< 0: the scene's own ticks per frame
+  double dt = 0.0;            ///< 0: the scene's own frame
+  int substeps = 0;           ///< 0: the scene's own ticks per frame
+  bool fixed_scheme = false;  ///< --fixed-scheme
   scenes::SceneParams params;
   std::string out, render, video, screenshot;
   int width = 0, height = 0;

@@ -29,6 +29,8 @@ int run_headless(const Program& program, const Options& o, const RunHooks& hooks
   try {
     auto scene = scenes::make_scene(o.scene, o.params);
     const Timing t = timing(o, *scene);
+    if (System* system = scene->deformable_system(); system && o.fixed_scheme)
+      system->step_settings().automatic = false;
     if (hooks.before) hooks.before(*scene);
     scenes::SceneMeasures worst, now;
     double wall_ms = 0.0, energy_start = 0.0;

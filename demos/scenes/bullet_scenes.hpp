@@ -81,6 +81,7 @@ class BulletScene : public Scene {
   BulletWorld& bullet() { return m_world; }
   bullet::Coupling& coupling() { return *m_coupling; }
   System& system() { return m_coupling->system(); }
+  System* deformable_system() override { return &m_coupling->system(); }
   double time() const { return m_time; }
 
   /// Largest distance of a hard-bound point from where its Bullet body's frame puts it [m].

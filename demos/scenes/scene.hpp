@@ -53,6 +53,8 @@ class Scene {
   virtual std::uint64_t state_hash() = 0;
   /// The sinew step's statistics summed over every tick so far, where the scene keeps them (else null).
   virtual const StepStats* total_stats() const { return nullptr; }
+  /// The scene's deformable system, where it has one the programs may set up (--fixed-scheme).
+  virtual System* deformable_system() { return nullptr; }
 };
 
 using SceneFactory = std::function<std::unique_ptr<Scene>(const SceneParams&)>;
@@ -96,6 +98,7 @@ class CoreScene : public Scene {
   std::uint64_t state_hash() override { return m_system.state_hash(); }
   const StepStats* total_stats() const override { return &m_total; }
   System& system() { return m_system; }
+  System* deformable_system() override { return &m_system; }
 
  protected:
   System m_system;
