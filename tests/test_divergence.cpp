@@ -133,6 +133,7 @@ TEST(Divergence, TooStiffExplicitSpringsStopNamingTheSprings) {
 TEST(Divergence, ARigidBodySpunUnstablyStopsNamingTheBody) {
   System s(SystemSettings{Vec3::Zero(), true});
   s.step_settings().binding_springs_in_step4 = BindingSpringStep4::explicit_end_of_step;
+  s.step_settings().settle_stiff_binding_springs = false;  // it damps this instability; the check is what is tested
   RigidBodySettings ring;
   ring.mass = 0.05;
   ring.inertia = {8e-5, 4e-5, 4e-5};

@@ -208,6 +208,11 @@ double HardBindings::effective_mass_along(Index particle, const Vec3& n, double 
   return scalar;
 }
 
+Vec3 HardBindings::point_velocity(Index particle, const Vectors3& v, const RigidBodyParticles& bodies) const {
+  if (const BindingKind* kind = kind_of(particle)) return kind->point_velocity(m_index_in_kind[particle], v, bodies);
+  return v.col(particle);
+}
+
 void HardBindings::apply_impulse(Index particle, const Vec3& j, Particles& p, RigidBodyParticles& bodies) const {
   if (const BindingKind* kind = kind_of(particle)) return kind->apply_impulse(m_index_in_kind[particle], j, p, bodies);
   if (p.kind[particle] != ParticleKind::kinematic) p.v.col(particle) += j / p.mass[particle];

@@ -771,18 +771,83 @@ void Newmark::extrapolate_velocity(const StepModel& s) {
     bodies.v.col(b) = 2.0 * m_y.rigid.col(b).head<3>() - bodies.v.col(b);
     bodies.w.col(b) = bodies.world_inverse_inertia(b) * L;
   }
-  if (m_constraints.has_joints()) {
-    // The joints hold at the end of the step too: extrapolation through v^{n+1/2} would otherwise
-    // reflect a violation present at t^n (-err at t^{n+1}, +err at t^{n+2}, ...) instead of removing it.
-    m_y.rigid.topRows<3>() = bodies.v;
-    m_y.rigid.bottomRows<3>() = bodies.w;
-    m_constraints.impose_joints(m_y);
-    bodies.v = m_y.rigid.topRows<3>();
-    bodies.w = m_y.rigid.bottomRows<3>();
+  const bool settle = s.settings.settle_stiff_binding_springs && s.springs.size() > 0;
+  if (settle) {  // what the settling changes, for the history below (m_product is free until step 1)
+    m_product.particles = p.v;
+    m_product.rigid.topRows<3>() = bodies.v;
+    m_product.rigid.bottomRows<3>() = bodies.w;
+  }
+  for (int pass = 0; pass < (settle ? kSettlePasses : 1); ++pass) {
+    if (settle) {
+      s.hard.update_rigid_offsets(bodies);
+      settle_stiff_binding_springs(s);
+    }
+    if (m_constraints.has_joints()) {
+      // The joints hold at the end of the step too: extrapolation through v^{n+1/2} would otherwise
+      // reflect a violation present at t^n (-err at t^{n+1}, +err at t^{n+2}, ...) instead of removing it.
+      m_y.rigid.topRows<3>() = bodies.v;
+      m_y.rigid.bottomRows<3>() = bodies.w;
+      m_constraints.impose_joints(m_y);
+      bodies.v = m_y.rigid.topRows<3>();
+      bodies.w = m_y.rigid.bottomRows<3>();
+    }
+  }
+  if (settle) {
+    // Step 1's extrapolated guess reads the motion's trend from v^n - v^{n-1/2}: the settling is no
+    // part of that trend, so the last half-step velocities move with it.
+    m_last_half.particles += p.v - m_product.particles;
+    m_last_half.rigid.topRows<3>() += bodies.v - m_product.rigid.topRows<3>();
+    m_last_half.rigid.bottomRows<3>() += bodies.w - m_product.rigid.bottomRows<3>();
   }
   s.hard.update_rigid_offsets(bodies);
   s.hard.clamp_velocities(p.v, bodies.v, bodies.w);
   s.soft.synchronize(p, true, true);
+}
+
+// A binding spring whose damped relative motion decays within a small part of the step (rate
+// min(c / 2 m, k / c) at the ends' effective mass m along their relative velocity, times dt, at least
+// kSettleDecay) holds its ends together in velocity too: the continuous system would have damped
+// their relative motion to nothing within the step. Step 5 cannot: v^{n+1} = 2 v~^{n+1/2} - v~^n
+// keeps a stiff mode's velocity error and flips its sign every step (the trapezoidal rule damps
+// nothing at k dt^2 / m >> 1), so an end-of-step relative velocity, once there (an initial condition,
+// an impact), would ring from step to step whatever the spring's damping; read by a rigid solver (its
+// contacts, its joints), it feeds energy in. Each such spring's ends get equal and opposite impulses
+// that leave them approaching at the speed that closes their present gap g over the next step,
+// -g / dt (a stiff spring's ends coincide; zero instead would keep the gap the step left, and a
+// swinging chain of them then opens its joints), so momentum is kept and only the relative motion's
+// energy goes. Gauss-Seidel passes over the springs in their order (deterministic), alternating with
+// the joints' projection.
+void Newmark::settle_stiff_binding_springs(const StepModel& s) {
+  auto& p = s.particles;
+  auto& bodies = s.bodies;
+  const auto movable = [&](Index i) {
+    const ParticleKind kind = p.kind[i];
+    return kind == ParticleKind::free || kind == ParticleKind::soft_spring || kind == ParticleKind::kinematic ||
+           s.hard.is_bound(i);
+  };
+  for (Index k = 0; k < s.springs.size(); ++k) {
+    if (s.springs.removed(k) || !s.springs.active(k)) continue;
+    const Index a = s.springs.a(k), b = s.springs.b(k);
+    if (!movable(a) || !movable(b)) continue;
+    const double stiffness = s.springs.stiffness(k), damping = s.springs.damping(k);
+    if (!(damping > 0.0 && stiffness > 0.0)) continue;
+    // Relative velocity against the one that closes the ends' present gap over the next step.
+    const Vec3 u = s.hard.point_velocity(a, p.v, bodies) - s.hard.point_velocity(b, p.v, bodies) +
+                   Vec3(p.x.col(a) - p.x.col(b)) / m_dt;
+    const double speed = u.norm();
+    if (!(speed > 0.0)) continue;
+    const Vec3 n = u / speed;
+    const double m_a = s.hard.effective_mass_along(a, n, s.effective_mass[a], bodies);
+    const double m_b = s.hard.effective_mass_along(b, n, s.effective_mass[b], bodies);
+    const double inverse = (std::isfinite(m_a) ? 1.0 / m_a : 0.0) + (std::isfinite(m_b) ? 1.0 / m_b : 0.0);
+    if (!(inverse > 0.0)) continue;
+    const double m = 1.0 / inverse;
+    const double rate = std::min(damping / (2.0 * m), stiffness / damping);
+    if (!(rate * m_dt >= kSettleDecay)) continue;
+    const Vec3 j = -m * speed * n;
+    s.hard.apply_impulse(a, j, p, bodies);
+    s.hard.apply_impulse(b, -j, p, bodies);
+  }
 }
 
 // ---- forces and right-hand side ---------------------------------------------------------------

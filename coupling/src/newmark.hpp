@@ -37,7 +37,9 @@ class Newmark {
   void process_collisions(const StepModel& s, double dt);                         // 3
   void backward_euler_velocity(const StepModel& s, double dt, StepStats& stats);  // 4
   void extrapolate_velocity(const StepModel& s);                                  // 5
-  void newton_iteration(const StepModel& s, double dt, StepStats& stats);         // after 1 (StepSettings)
+  /// Step 5's end: stiff damped binding springs' ends move together (see newmark.cpp).
+  void settle_stiff_binding_springs(const StepModel& s);
+  void newton_iteration(const StepModel& s, double dt, StepStats& stats);  // after 1 (StepSettings)
 
   /// Step 1's initial guesses: v^n in m_y and, when one is to be tried, the other in m_guess (see
   /// the comment in the .cpp). Returns the alternative to pass to the solve, or null.
@@ -57,6 +59,10 @@ class Newmark {
 
   /// Step1Guess::adaptive tries both step-1 guesses once in this many steps.
   static constexpr int kGuessTrialSteps = 8;
+  /// A binding spring is settled at the step's end when its relative motion decays by e^-kSettleDecay
+  /// within the step; kSettlePasses Gauss-Seidel passes over the springs (and the joints).
+  static constexpr double kSettleDecay = 4.0;
+  static constexpr int kSettlePasses = 4;
   static void record_solve(const SolveResult& result, int& iterations, StepStats& stats);
   void allocate(const StepModel& s);
   void save_state(const StepModel& s);

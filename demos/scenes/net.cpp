@@ -55,9 +55,11 @@ class Net final : public BulletScene {
     m_ball->setActivationState(DISABLE_DEACTIVATION);
   }
   // Stiff point joints between light rods meet Bullet's contact solver when the ball lands, a contact
-  // the step does not know. At 1/480 s ticks the scene's energy only falls (100.9 J at frame 300, 98.9
-  // J at frame 600). At 1/240 s it no longer diverges, but it gains: 100.9 J at frame 300, 127.0 J at
-  // frame 450. At 1/120 s it ends at 298 J from 157 J.
+  // the step does not know. At 1/480 s ticks the scene's energy only falls after the landing (102.3 J
+  // at frame 300, 98.3 J at frame 600). At 1/240 s, with the joints' ends settled at each step's end
+  // (StepSettings::settle_stiff_binding_springs), it still gains between frames 200 and 300 (104.0 J
+  // to 108.7 J; 127.0 J at frame 450 before the settling), then falls to 101.2 J at frame 600. At
+  // 1/120 s it ends at 74 J (298 J before the settling).
   int default_substeps() const override { return 8; }
   btRigidBody* ball() const { return m_ball; }
 

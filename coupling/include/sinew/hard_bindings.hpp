@@ -109,6 +109,8 @@ class HardBindings {
                           const Vectors6& wrench) const;
   /// The effective mass along unit direction n; `scalar` is the particle's eq. 4 effective mass.
   double effective_mass_along(Index particle, const Vec3& n, double scalar, const RigidBodyParticles& bodies) const;
+  /// The velocity of `particle`: its own if unbound, W (v, twist) of its parents' if bound.
+  Vec3 point_velocity(Index particle, const Vectors3& v, const RigidBodyParticles& bodies) const;
   /// Impulse j at `particle`: its own velocity if free, its parents' if bound; bound rows are not
   /// re-clamped here.
   void apply_impulse(Index particle, const Vec3& j, Particles& p, RigidBodyParticles& bodies) const;

@@ -113,6 +113,11 @@ struct StepSettings {
   int threads = 1;
   Step1Guess step1_guess = Step1Guess::adaptive;
   BindingSpringStep4 binding_springs_in_step4 = BindingSpringStep4::implicit_half_step;
+  /// At the step's end, a damped binding spring whose relative motion would decay within a small part
+  /// of the step (stiff against its ends' masses) holds its ends together in velocity too, by equal
+  /// and opposite impulses: the step's end velocity keeps and flips a stiff mode's velocity error
+  /// from step to step, which a rigid solver reading it (contacts, joints) turns into energy.
+  bool settle_stiff_binding_springs = true;
   /// Fraction of the elastic stable step used by advance(), in (0, 1]: the stable step is an
   /// estimate, so a margin below 1 keeps advance() clear of its edge.
   double cfl = 0.9;

@@ -76,6 +76,12 @@ double LinearBindings::max_drift(const Vectors3& x, const RigidBodyParticles&) c
   return drift;
 }
 
+Vec3 LinearBindings::point_velocity(Index k, const Vectors3& v, const RigidBodyParticles&) const {
+  Vec3 u = Vec3::Zero();
+  for (Index j = m_offset[k]; j < m_offset[k + 1]; ++j) u += m_weight[j] * v.col(m_parent[j]);
+  return u;
+}
+
 Vec3 LinearBindings::point_acceleration(Index k, const Particles& p, const RigidBodyParticles&, const Vectors3& f,
                                         const Vectors6&) const {
   Vec3 a = Vec3::Zero();

@@ -155,6 +155,11 @@ double RigidBindings::max_drift(const Vectors3& x, const RigidBodyParticles& bod
   return drift;
 }
 
+Vec3 RigidBindings::point_velocity(Index k, const Vectors3&, const RigidBodyParticles& bodies) const {
+  const Index b = m_body[k];
+  return Vec3(bodies.v.col(b)) + Vec3(bodies.w.col(b)).cross(offset_world(k));
+}
+
 Vec3 RigidBindings::point_acceleration(Index k, const Particles&, const RigidBodyParticles& bodies, const Vectors3&,
                                        const Vectors6& wrench) const {
   const Index b = m_body[k];

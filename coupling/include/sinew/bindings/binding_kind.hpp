@@ -69,6 +69,9 @@ class BindingKind {
   /// The acceleration of bound point k given its parents' forces (f: particles, wrench: bodies, both
   /// already passed through W^T): sum_i w_i f_i / m_i, or a_c + alpha x r. The centripetal term
   /// w x (w x r) is left out, as in the paper's force mapping: it is not a force.
+  /// Binding k's velocity W (v, twist) from its parents' velocities v and the bodies' twists (with the
+  /// offsets of the last update_offsets).
+  virtual Vec3 point_velocity(Index k, const Vectors3& v, const RigidBodyParticles& bodies) const = 0;
   virtual Vec3 point_acceleration(Index k, const Particles& p, const RigidBodyParticles& bodies, const Vectors3& f,
                                   const Vectors6& wrench) const = 0;
   /// 1/m_e (eq. 4): sum_i w_i^2 / m_i, or the largest eigenvalue of the impulse matrix K of a frame

@@ -48,6 +48,7 @@ class RigidBindings final : public BindingKind {
   void add_preconditioner_blocks(DiagonalBlocks& blocks, std::vector<Mat6>& body_blocks) const override;
   double max_drift(const Vectors3& x, const RigidBodyParticles& bodies) const override;
 
+  Vec3 point_velocity(Index k, const Vectors3& v, const RigidBodyParticles& bodies) const override;
   Vec3 point_acceleration(Index k, const Particles& p, const RigidBodyParticles& bodies, const Vectors3& f,
                           const Vectors6& wrench) const override;
   double inverse_effective_mass(Index k, const VectorXd& mass, const RigidBodyParticles& bodies) const override;
