@@ -1595,3 +1595,125 @@ TEST(AutomaticScheme, LeavesACheapExplicitSceneBitIdentical) {
 
 }  // namespace
 }  // namespace sinew
+
+namespace sinew {
+namespace {
+
+// ---- sleeping (StepSettings::sleep) through the coupling ------------------------------------------
+
+constexpr double kSleepTick = 1.0 / 240;
+
+// A 9 x 9 cloth dropped flat from 3 cm onto a static ground plane.
+struct ClothOnGround {
+  BulletWorld bw{btVector3(0, -9.81, 0)};
+  std::unique_ptr<bullet::Coupling> coupling;
+  explicit ClothOnGround(bool sleep) {
+    bw.add_body(bw.keep(std::make_unique<btStaticPlaneShape>(btVector3(0, 1, 0), 0)), 0.0,
+                scenes::at(btVector3(0, 0, 0)));
+    coupling = std::make_unique<bullet::Coupling>(&bw.world());
+    coupling->system().step_settings().sleep = sleep;
+    scenes::ClothGridSettings c;
+    c.nx = c.ny = 9;
+    c.width = c.height = 0.6;
+    c.mass = 0.1;
+    c.origin = Vec3(-0.3, 0.03, -0.3);
+    c.across = Vec3::UnitX();
+    c.down = Vec3::UnitZ();
+    c.stretch_stiffness = 30.0;
+    c.stretch_damping = 0.02;
+    c.bending_stiffness = 1e-5;
+    scenes::add_cloth_grid(coupling->system(), c);
+  }
+  System& system() { return coupling->system(); }
+  void tick() { bw.world().stepSimulation(btScalar(kSleepTick), 1, btScalar(kSleepTick)); }
+};
+
+TEST(Sleeping, AClothAsleepOnTheGroundWakesForAFallingBoxThatItThenStopsAsItWouldAwake) {
+  ClothOnGround a(true), b(false);
+  int asleep_at = -1;
+  for (int tick = 0; tick < 720; ++tick) {
+    a.tick();
+    b.tick();
+    if (asleep_at < 0 && a.system().asleep()) asleep_at = tick;
+  }
+  ASSERT_GE(asleep_at, 0) << "not asleep after 3 s on the ground";
+  EXPECT_TRUE(a.system().asleep()) << "the ground alone woke it";
+  EXPECT_FALSE(b.system().asleep());
+  // A box dropped from 40 cm onto the cloth's centre, in both worlds.
+  auto drop = [](ClothOnGround& w) {
+    btRigidBody* box = w.bw.add_body(w.bw.keep(std::make_unique<btBoxShape>(btVector3(0.05, 0.05, 0.05))), 0.2,
+                                     scenes::at(btVector3(0.02, 0.4, 0.01)));
+    return box;
+  };
+  btRigidBody* box_a = drop(a);
+  btRigidBody* box_b = drop(b);
+  int woke_at = -1;
+  double height_at_wake = 0.0;
+  for (int tick = 0; tick < 360; ++tick) {
+    a.tick();
+    b.tick();
+    if (woke_at < 0 && !a.system().asleep()) {
+      woke_at = tick;
+      height_at_wake = static_cast<double>(box_a->getCenterOfMassPosition().y());
+    }
+  }
+  ASSERT_GE(woke_at, 0) << "the falling box did not wake the cloth";
+  EXPECT_GT(woke_at, 0) << "woken before the box came near";
+  EXPECT_GT(height_at_wake - 0.05, 0.01) << "woken only once the box was in the cloth";
+  const double ya = static_cast<double>(box_a->getCenterOfMassPosition().y());
+  const double yb = static_cast<double>(box_b->getCenterOfMassPosition().y());
+  EXPECT_NEAR(ya, yb, 1e-3);
+  EXPECT_GT(ya, 0.05 - 1e-3);  // on the ground through the cloth, as awake
+  // No part of the cloth was left inside the box (as it would be, had it slept on).
+  const System& s = a.system();
+  for (Index i = 0; i < s.particles().size(); ++i) {
+    double phi;
+    Vec3 n;
+    ASSERT_TRUE(bullet::signed_distance(box_a->getCollisionShape(), box_a->getCenterOfMassTransform(),
+                                        s.particles().x.col(i), 1.0, phi, n));
+    EXPECT_GT(phi, 0.0) << "particle " << i;
+  }
+  EXPECT_LT(bullet::to_eigen(box_a->getLinearVelocity()).norm(), 0.05) << "stopped";
+}
+
+TEST(Sleeping, AClothHungBetweenABarAndABoxWakesWhenTheBoxIsPushed) {
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  btRigidBody* bar = add_box(bw, btVector3(0.3, 0.02, 0.02), 0.0, scenes::at(btVector3(0, 1.02, 0)));
+  btRigidBody* box = bw.add_body(bw.keep(std::make_unique<btBoxShape>(btVector3(0.05, 0.05, 0.05))), 0.05,
+                                 scenes::at(btVector3(0, 0.55, 0)));
+  bullet::Coupling coupling(&bw.world());
+  System& s = coupling.system();
+  scenes::ClothGridSettings c = small_cloth(Vec3(-0.2, 1.0, 0.0));
+  c.width = 0.4;
+  c.height = 0.4;
+  c.stretch_stiffness = 200.0;
+  c.stretch_damping = 2.0;
+  const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
+  for (int i = 0; i < cloth.nx; ++i) coupling.bind_here(cloth.node(i, 0), bar);
+  coupling.bind_here(cloth.node(2, cloth.ny - 1), box);
+  coupling.bind_here(cloth.node(3, cloth.ny - 1), box);
+  auto tick = [&] { bw.world().stepSimulation(btScalar(kSleepTick), 1, btScalar(kSleepTick)); };
+  int asleep_at = -1;
+  for (int t = 0; t < 960 && asleep_at < 0; ++t) {
+    tick();
+    if (s.asleep()) asleep_at = t;
+  }
+  ASSERT_GE(asleep_at, 0) << "not asleep after 4 s";
+  // Asleep, the box is held where it came to rest.
+  const Vec3 rest = bullet::to_eigen(box->getCenterOfMassPosition());
+  for (int t = 0; t < 120; ++t) {
+    tick();
+    ASSERT_TRUE(s.asleep()) << t;
+  }
+  EXPECT_LT((bullet::to_eigen(box->getCenterOfMassPosition()) - rest).norm(), 1e-6);
+  box->applyCentralImpulse(btVector3(0.005, 0, 0));  // 0.1 m/s
+  tick();
+  EXPECT_FALSE(s.asleep());
+  EXPECT_FALSE(coupling.last_stats().asleep);
+  EXPECT_GT(coupling.last_stats().substeps, 0);
+  for (int t = 0; t < 24; ++t) tick();
+  EXPECT_GT(bullet::to_eigen(box->getCenterOfMassPosition()).x() - rest.x(), 1e-3) << "the push moved the box";
+}
+
+}  // namespace
+}  // namespace sinew

@@ -397,6 +397,9 @@ TEST(System, BindingsReportTheForceTheyCarry) {
   const Index anchor = s.add_kinematic_particle(Vec3(1, 0, 0));
   const Index r = s.add_particle(Vec3(1, 0, 0), Vec3::Zero(), 0.3);
   const Index spring = s.add_binding_spring({r, anchor, 2e3, 1.0});
+  // Read at equilibrium to 1e-6 N: sleeping would freeze the settling swing once it is slower than
+  // sleep_speed (about 3e-5 N off here).
+  s.step_settings().sleep = false;
   for (int f = 0; f < 600; ++f) s.advance(1.0 / 60);
   const Vec3 weight(0, -0.3 * 9.81, 0);
   EXPECT_NEAR((s.hard_binding_force(p) - weight).norm(), 0.0, 1e-6);
@@ -609,6 +612,120 @@ TEST(System, AFailedStepLeavesTheStateOfItsStart) {
   const std::string node = error_of([&] { s.step(1.0 / 240); });
   EXPECT_NE(node.find("particle " + std::to_string(cloth.node(3, 3)) + " has a non-finite velocity"), std::string::npos)
       << node;
+}
+
+}  // namespace
+}  // namespace sinew
+
+namespace sinew {
+namespace {
+
+// ---- sleeping (StepSettings::sleep) -------------------------------------------------------------
+
+// A 8 x 8 cloth hung straight down from two kinematic points at its top corners, settling under its
+// own weight; `drag` moves the left pin at that velocity (prescribed motion).
+struct PinnedCloth {
+  System system;
+  scenes::ClothGrid cloth;
+  Index left = -1, right = -1;
+  explicit PinnedCloth(const Vec3& drag = Vec3::Zero()) {
+    scenes::ClothGridSettings c;
+    c.nx = c.ny = 8;
+    c.width = c.height = 0.4;
+    c.mass = 0.1;
+    c.origin = Vec3(-0.2, 1.0, 0.0);
+    c.stretch_stiffness = 60.0;
+    c.stretch_damping = 0.05;
+    c.bending_stiffness = 1e-5;
+    cloth = scenes::add_cloth_grid(system, c);
+    left = system.add_kinematic_particle(system.particles().x.col(cloth.node(0, 0)), drag);
+    right = system.add_kinematic_particle(system.particles().x.col(cloth.node(7, 0)));
+    const std::array<double, 1> one{1.0};
+    system.bind_linear(cloth.node(0, 0), std::array<Index, 1>{left}, one);
+    system.bind_linear(cloth.node(7, 0), std::array<Index, 1>{right}, one);
+  }
+  // Frames of 1/60 s until the system sleeps; the frame count, or -1 if it did not within `limit`.
+  int frames_to_sleep(int limit) {
+    for (int frame = 1; frame <= limit; ++frame) {
+      system.advance(1.0 / 60);
+      if (system.asleep()) return frame;
+    }
+    return -1;
+  }
+};
+
+TEST(Sleeping, AHangingClothComesToRestFallsAsleepAndThenCostsNothing) {
+  PinnedCloth a, b;
+  const int onset = a.frames_to_sleep(300);
+  ASSERT_GT(onset, 0) << "not asleep after 5 s";
+  // Not before it has been at rest for sleep_time, and the same frame in an identical run.
+  EXPECT_GE(onset, static_cast<int>(std::floor(a.system.step_settings().sleep_time * 60)));
+  EXPECT_EQ(b.frames_to_sleep(300), onset);
+  expect_bit_identical(a.system, b.system, "at the onset of sleep");
+  // Asleep: zero velocities, the pose it settled in.
+  for (Index i = 0; i < a.system.particles().size(); ++i) EXPECT_TRUE(a.system.particles().v.col(i).isZero(0.0)) << i;
+  const Vectors3 x = a.system.particles().x;
+  const std::uint64_t hash = a.system.state_hash();
+  const double t = a.system.time();
+  for (int frame = 0; frame < 120; ++frame) {
+    const StepStats s = a.system.advance(1.0 / 60);
+    ASSERT_TRUE(s.asleep) << frame;
+    EXPECT_EQ(s.substeps, 0);  // no step: no force evaluation
+    EXPECT_EQ(s.cg_iterations_step1 + s.cg_iterations_step4, 0);
+    EXPECT_EQ(s.ms.forces, 0.0);
+  }
+  EXPECT_TRUE(a.system.particles().x == x);
+  EXPECT_EQ(a.system.state_hash(), hash);
+  EXPECT_NEAR(a.system.time(), t + 2.0, 1e-12);  // time goes on
+  // The settled pose is a rest pose: with sleeping off the same cloth stays within a millimetre of it.
+  b.system.step_settings().sleep = false;
+  for (int frame = 0; frame < 60; ++frame) b.system.advance(1.0 / 60);
+  EXPECT_FALSE(b.system.asleep());
+  EXPECT_LT((b.system.particles().x - x).cwiseAbs().maxCoeff(), 1e-3);
+}
+
+TEST(Sleeping, WakesWhenTheCallerChangesTheScene) {
+  const std::vector<std::pair<std::string, std::function<void(PinnedCloth&)>>> changes = {
+      {"a particle's velocity",
+       [](PinnedCloth& c) { c.system.particles().v.col(c.cloth.node(4, 7)) = Vec3(0.2, 0, 0); }},
+      {"a particle's position", [](PinnedCloth& c) { c.system.particles().x(2, c.cloth.node(4, 7)) += 0.01; }},
+      {"a kinematic particle's velocity", [](PinnedCloth& c) { c.system.particles().v.col(c.left) = Vec3(0.1, 0, 0); }},
+      {"gravity", [](PinnedCloth& c) { c.system.set_gravity(Vec3(0, -9.81, 1.0)); }},
+      {"an impulse", [](PinnedCloth& c) { c.system.apply_impulse(c.cloth.node(3, 3), Vec3(0, 0, 1e-4)); }},
+      {"the topology",
+       [](PinnedCloth& c) { c.system.remove_elements_touching(std::array<Index, 1>{c.cloth.node(4, 4)}); }},
+      {"sleep turned off", [](PinnedCloth& c) { c.system.step_settings().sleep = false; }},
+      {"wake()", [](PinnedCloth& c) { c.system.wake(); }},
+  };
+  for (const auto& [what, change] : changes) {
+    PinnedCloth c;
+    ASSERT_GT(c.frames_to_sleep(300), 0);
+    const Vectors3 x = c.system.particles().x;
+    change(c);
+    const StepStats s = c.system.advance(1.0 / 60);
+    EXPECT_FALSE(s.asleep) << what;
+    EXPECT_FALSE(c.system.asleep()) << what;
+    EXPECT_GT(s.substeps, 0) << what;
+    if (what != "wake()" && what != "sleep turned off")
+      EXPECT_FALSE(c.system.particles().x == x) << what << ": the woken step moved nothing";
+  }
+}
+
+TEST(Sleeping, AClothDraggedByAKinematicPointNeverSleeps) {
+  // Dragged at 1 mm/s, below sleep_speed: prescribed motion is never rest.
+  PinnedCloth c(Vec3(1e-3, 0, 0));
+  EXPECT_EQ(c.frames_to_sleep(240), -1);
+  EXPECT_EQ(c.system.rest_time(), 0.0);
+}
+
+TEST(Sleeping, SettingsAreValidatedByName) {
+  System s;
+  s.add_particle(Vec3::Zero(), Vec3::Zero(), 1.0);
+  s.step_settings().sleep_speed = -1.0;
+  EXPECT_NE(error_of([&] { s.advance(0.01); }).find("sleep_speed"), std::string::npos);
+  s.step_settings().sleep_speed = 1e-3;
+  s.step_settings().sleep_time = 0.0;
+  EXPECT_NE(error_of([&] { s.advance(0.01); }).find("sleep_time"), std::string::npos);
 }
 
 }  // namespace

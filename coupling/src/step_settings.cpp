@@ -22,6 +22,10 @@ void validate(const StepSettings& s) {
          ", must be positive and finite");
   if (!(s.divergence_factor >= 0.0))
     fail("step settings: divergence_factor = ", s.divergence_factor, ", must be >= 0 (0: no divergence check)");
+  if (!(std::isfinite(s.sleep_speed) && s.sleep_speed >= 0.0))
+    fail("step settings: sleep_speed = ", s.sleep_speed, ", must be non-negative and finite");
+  if (!(std::isfinite(s.sleep_time) && s.sleep_time > 0.0))
+    fail("step settings: sleep_time = ", s.sleep_time, ", must be positive and finite");
   if (s.multigrid && !s.jacobi_preconditioner)
     fail("step settings: multigrid needs jacobi_preconditioner (block Jacobi is its finest level)");
 }

@@ -36,6 +36,7 @@ StepStats& StepStats::operator+=(const StepStats& o) {
   linear_solve = linear_solve || o.linear_solve;
   implicit_elasticity = implicit_elasticity || o.implicit_elasticity;
   mapped_impulse += o.mapped_impulse;
+  asleep = asleep || o.asleep;
   ms += o.ms;
   return *this;
 }
@@ -206,6 +207,7 @@ void System::set_binding_spring_active(Index spring, bool active) {
   if (spring < 0 || spring >= m_springs.size()) fail("binding spring ", spring, " does not exist");
   if (m_springs.removed(spring)) fail("binding spring ", spring, " was removed");
   m_springs.set_active(spring, active);
+  wake();
 }
 
 Vec3 System::binding_spring_force(Index spring) const {
@@ -302,6 +304,7 @@ void System::set_binding_spring_ends(Index spring, Index a, Index b) {
          " both have infinite mass (kinematic or on kinematic parents)");
   m_springs.set_ends(spring, a, b);
   if (set_up) m_springs.set_damping_from_masses(m_inverse_effective_mass);
+  wake();
 }
 
 void System::set_gravity(const Vec3& gravity) {
@@ -331,6 +334,7 @@ void System::add_collision_surface(std::span<const std::array<Index, 3>> triangl
     }
   std::sort(segments.begin(), segments.end());
   segments.erase(std::unique(segments.begin(), segments.end()), segments.end());
+  wake();
 }
 
 void System::set_collision_filter(Index particle, std::uint32_t group, std::uint32_t mask) {
@@ -338,6 +342,7 @@ void System::set_collision_filter(Index particle, std::uint32_t group, std::uint
     fail("set_collision_filter: particle ", particle, " does not exist");
   m_geometry.group[static_cast<std::size_t>(particle)] = group;
   m_geometry.mask[static_cast<std::size_t>(particle)] = mask;
+  wake();
 }
 
 void System::set_joint_rows(std::vector<JointRow> rows) {
@@ -469,6 +474,7 @@ void System::apply_impulse(Index particle, const Vec3& j) {
   if (!all_finite(j)) fail("apply_impulse: impulse on particle ", particle, " is not finite");
   m_hard.apply_impulse(particle, j, m_particles, m_bodies);
   clamp_bound_rows();
+  wake();
 }
 
 void System::clamp_bound_rows() {
@@ -553,10 +559,141 @@ StepStats System::run_substeps(double frame_dt, int substeps) {
   return total;
 }
 
+// ---- sleeping --------------------------------------------------------------------------------
+//
+// The whole system sleeps or wakes as one: the step solves every unknown together (the binding
+// springs, joint rows and collision groups couple them), so a sleeping part would have to enter
+// the solves as prescribed motion and its neighbours' forces on it be ignored; one flag for all
+// keeps the step untouched and an asleep frame at one pass over the state.
+
 StepStats System::advance(double frame_dt) {
   if (!(std::isfinite(frame_dt) && frame_dt > 0.0))
     fail("advance: frame dt ", frame_dt, " must be positive and finite");
-  validate(m_step_settings);  // before cfl and max_substeps are used below
+  validate(m_step_settings);
+  if (m_asleep && !still_asleep(frame_dt)) wake();
+  if (m_asleep) {
+    // The rigid solver may have left the bodies a round-off twist (the wake test allows it below
+    // sleep_speed): they are held, with the points on them.
+    bool held = false;
+    for (Index b = 0; b < m_bodies.size(); ++b)
+      if (!m_bodies.kinematic[b] && !(m_bodies.v.col(b).isZero(0.0) && m_bodies.w.col(b).isZero(0.0))) {
+        m_bodies.v.col(b).setZero();
+        m_bodies.w.col(b).setZero();
+        held = true;
+      }
+    if (held) clamp_bound_rows();
+    m_time += frame_dt;
+    StepStats stats;
+    stats.asleep = true;
+    return stats;
+  }
+  StepStats stats = advance_awake(frame_dt);
+  if (!m_step_settings.sleep) return stats;
+  // At rest at the end of every frame for sleep_time (frames summed, so the test does not depend on
+  // the frame's length beyond its granularity).
+  m_rest_time = at_rest() ? m_rest_time + frame_dt : 0.0;
+  if (m_rest_time >= m_step_settings.sleep_time) fall_asleep();
+  return stats;
+}
+
+void System::wake() {
+  m_asleep = false;
+  m_rest_time = 0.0;
+  m_sleep.bounds.setEmpty();
+}
+
+double System::body_reach(Index b) const {
+  double reach = std::sqrt(m_bodies.inertia.col(b).maxCoeff() / m_bodies.mass[b]);
+  const RigidBindings& rigid = m_hard.rigid();
+  for (Index k = 0; k < rigid.size(); ++k)
+    if (rigid.body(k) == b) reach = std::max(reach, m_hard.rigid_offset_body(k).norm());
+  return reach;
+}
+
+bool System::at_rest() const {
+  const double speed = m_step_settings.sleep_speed;
+  for (Index i = 0; i < m_particles.size(); ++i) {
+    const ParticleKind kind = m_particles.kind[i];
+    if (kind == ParticleKind::free || kind == ParticleKind::soft_spring) {
+      if (!(m_particles.v.col(i).norm() <= speed)) return false;
+    } else if (kind == ParticleKind::kinematic) {
+      if (!m_particles.v.col(i).isZero(0.0)) return false;  // prescribed motion: never at rest
+    }
+  }
+  for (Index b = 0; b < m_bodies.size(); ++b) {
+    if (m_bodies.kinematic[b]) {
+      if (!(m_bodies.v.col(b).isZero(0.0) && m_bodies.w.col(b).isZero(0.0))) return false;
+    } else if (!(m_bodies.v.col(b).norm() + m_bodies.w.col(b).norm() * body_reach(b) <= speed)) {
+      return false;
+    }
+  }
+  return true;
+}
+
+void System::fall_asleep() {
+  for (Index i = 0; i < m_particles.size(); ++i)
+    if (m_particles.kind[i] == ParticleKind::free || m_particles.kind[i] == ParticleKind::soft_spring)
+      m_particles.v.col(i).setZero();
+  m_sleep.body_reach.resize(m_bodies.size());
+  for (Index b = 0; b < m_bodies.size(); ++b) {
+    if (m_bodies.kinematic[b]) continue;
+    m_bodies.v.col(b).setZero();
+    m_bodies.w.col(b).setZero();
+    m_sleep.body_reach[b] = body_reach(b);
+  }
+  clamp_bound_rows();  // bound and synchronized rows at rest with their parents
+  m_sleep.x = m_particles.x;
+  m_sleep.v = m_particles.v;
+  m_sleep.mass = m_particles.mass;
+  m_sleep.body_x = m_bodies.x;
+  m_sleep.body_q = m_bodies.q;
+  m_sleep.body_force = m_bodies.force;
+  m_sleep.body_torque = m_bodies.torque;
+  m_sleep.gravity = m_settings.gravity;
+  m_sleep.bounds.setEmpty();
+  for (Index i = 0; i < m_particles.size(); ++i)
+    if (m_particles.kind[i] != ParticleKind::removed) m_sleep.bounds.extend(Vec3(m_particles.x.col(i)));
+  m_asleep = true;
+}
+
+bool System::still_asleep(double frame_dt) const {
+  if (!m_step_settings.sleep || needs_set_up() || m_settings.gravity != m_sleep.gravity) return false;
+  const Index n = m_particles.size();
+  if (m_sleep.x.cols() != n || m_sleep.body_x.cols() != m_bodies.size()) return false;
+  // Rows with a state of their own must be exactly as recorded: any change is the caller's. Bound and
+  // synchronized rows follow their parents, which are tested instead.
+  for (Index i = 0; i < n; ++i) {
+    const ParticleKind kind = m_particles.kind[i];
+    if (kind != ParticleKind::free && kind != ParticleKind::soft_spring && kind != ParticleKind::kinematic) continue;
+    if (m_particles.x.col(i) != m_sleep.x.col(i) || m_particles.v.col(i) != m_sleep.v.col(i)) return false;
+  }
+  if (m_particles.mass.size() != m_sleep.mass.size() || m_particles.mass != m_sleep.mass) return false;
+  const double speed = m_step_settings.sleep_speed;
+  for (Index b = 0; b < m_bodies.size(); ++b) {
+    const auto q = static_cast<std::size_t>(b);
+    if (m_bodies.kinematic[b]) {
+      if (m_bodies.x.col(b) != m_sleep.body_x.col(b) || m_bodies.q[q].coeffs() != m_sleep.body_q[q].coeffs() ||
+          !m_bodies.v.col(b).isZero(0.0) || !m_bodies.w.col(b).isZero(0.0))
+        return false;
+      continue;
+    }
+    // A rigid solver owns dynamic bodies and leaves them round-off twists and drifts: a body wakes the
+    // system when it moves as a woken scene would, or when the forces on it change.
+    const double reach = m_sleep.body_reach[b];
+    if (!(m_bodies.v.col(b).norm() + m_bodies.w.col(b).norm() * reach <= speed)) return false;
+    const double turn = Eigen::AngleAxisd(m_bodies.q[q] * m_sleep.body_q[q].conjugate()).angle();
+    if (!((m_bodies.x.col(b) - m_sleep.body_x.col(b)).norm() + turn * reach <= speed * frame_dt)) return false;
+    // A change of its applied force or torque (recomputed by the rigid solver every tick, to round-off)
+    // wakes it when over sleep_time it would give the body's farthest point more than sleep_speed.
+    const double acceleration =
+        (m_bodies.force.col(b) - m_sleep.body_force.col(b)).norm() / m_bodies.mass[b] +
+        (m_bodies.torque.col(b) - m_sleep.body_torque.col(b)).norm() * reach / m_bodies.inertia.col(b).minCoeff();
+    if (!(acceleration * m_step_settings.sleep_time <= speed)) return false;
+  }
+  return true;
+}
+
+StepStats System::advance_awake(double frame_dt) {
   const auto too_many = [&](double limit) {
     fail("advance: the stable step ", m_step_settings.cfl * limit, " s needs ",
          std::ceil(frame_dt / (m_step_settings.cfl * limit)), " substeps for a frame of ", frame_dt,

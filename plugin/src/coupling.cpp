@@ -672,6 +672,7 @@ StepStats Coupling::tick(double dt) {
   follow_teleports();
   if (m_system.needs_set_up()) set_up();
   copy_joints_in(dt);
+  if (m_system.asleep()) wake_on_approach(dt);
   // A tick that throws leaves the state of its start: the deformables and rigid-body particles as
   // they were, no collision impulse handed over, and Bullet's gathered forces cleared (the exception
   // leaves stepSimulation before Bullet's own clearForces, and the next call would add gravity again).
@@ -699,9 +700,56 @@ StepStats Coupling::tick(double dt) {
     m_world->clearForces();
     throw;
   }
-  if (m_collisions) m_collisions->apply_pending_impulses();
+  if (m_collisions) {
+    if (m_last.asleep) m_collisions->forget_contacts();  // the end of the tick holds none of them
+    m_collisions->apply_pending_impulses();
+  }
+  // Asleep, the step left the bodies where they were copied in, at rest: they are handed a zero motion
+  // and end the tick at rest (plus whatever Bullet itself does to them).
   hand_over_position_velocity(dt);
   return m_last;
+}
+
+// A sleeping system runs no step 3, so nothing stops a body that moves into the deformables: a body
+// that may reach them within this tick wakes the system first. Reach: the bodies' AABBs, grown by how
+// far their surface can move over the tick (speed, plus gravity's gain, plus spin times the bounding
+// radius, times dt), against the box of the sleeping particles grown by the collision thickness.
+// Dynamic bodies count while Bullet keeps them active (a body Bullet has put to sleep stays still
+// until something wakes it, and then it wakes the deformables in turn), kinematic ones while they
+// have a velocity; static objects never, nor coupled bodies, whose motion the system's own wake test
+// sees (System::advance). Collision filters are not consulted: a needless wake costs one frame's step.
+void Coupling::wake_on_approach(double dt) {
+  if (!m_collisions) return;  // the deformables meet no Bullet object
+  Eigen::AlignedBox3d sleeping = m_system.sleeping_bounds();
+  if (sleeping.isEmpty()) return;
+  const Vec3 pad = Vec3::Constant(m_collisions->thickness());
+  sleeping.min() -= pad;
+  sleeping.max() += pad;
+  const double g = to_eigen(m_world->getGravity()).norm();
+  const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
+  for (int o = 0; o < objects.size(); ++o) {
+    const btCollisionObject* object = objects[o];
+    if (object->isStaticObject() || m_rigid_particles.count(object)) continue;
+    const btRigidBody* body = btRigidBody::upcast(object);
+    Vec3 v = Vec3::Zero(), w = Vec3::Zero();
+    if (body) {
+      v = to_eigen(body->getLinearVelocity());
+      w = to_eigen(body->getAngularVelocity());
+    }
+    if (object->isKinematicObject() ? v.isZero(0.0) && w.isZero(0.0) : !object->isActive()) continue;
+    const btCollisionShape* shape = object->getCollisionShape();
+    btVector3 lo, hi, centre;
+    btScalar radius;
+    shape->getAabb(object->getWorldTransform(), lo, hi);
+    shape->getBoundingSphere(centre, radius);
+    const double falls = object->isKinematicObject() ? 0.0 : g * dt;
+    const Vec3 reach = Vec3::Constant((v.norm() + falls + w.norm() * static_cast<double>(radius)) * dt);
+    const Eigen::AlignedBox3d moving(Vec3(to_eigen(lo) - reach), Vec3(to_eigen(hi) + reach));
+    if (moving.intersects(sleeping)) {
+      m_system.wake();
+      return;
+    }
+  }
 }
 
 void Coupling::copy_state_in() {

@@ -41,6 +41,8 @@ struct StepStats {
   /// dt * sum of the forces mapped onto soft-bound particles in step 4: the momentum the mapping adds
   /// to the system (section 3: soft particles duplicate mass, and the mapping duplicates momentum).
   Vec3 mapped_impulse = Vec3::Zero();
+  /// The system slept through this call (System::advance): no step, no force, no solve.
+  bool asleep = false;
   PhaseTimes ms;
 
   StepStats& operator+=(const StepStats& o);

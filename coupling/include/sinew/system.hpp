@@ -156,6 +156,20 @@ struct StepSettings {
   /// can have done since (coupling/README.md, "The step: five phases"). An instability grows
   /// geometrically, so a generous factor delays the stop by a few steps only. 0 turns the check off.
   double divergence_factor = 100.0;
+  /// advance() puts the system to sleep (as Bullet deactivates a body at rest) once every dynamic
+  /// particle (free, soft-spring) has moved slower than sleep_speed, every dynamic rigid-body
+  /// particle's fastest point (centre speed plus |w| times its reach: its bound points, its radius of
+  /// gyration) too, and every kinematic particle and body has stood still, at the end of every frame
+  /// for sleep_time: velocities are then set to zero and, until something wakes it, advance() holds
+  /// the state and does nothing else (System::advance lists what wakes it). Off: every frame steps.
+  bool sleep = true;
+  /// [m/s] Cloth settling under gravity creeps at 1e-4 to 1e-3 m/s long after it looks still; a scene
+  /// in motion moves at 0.1 m/s or more. Zeroing a speed below this changes a particle's position by
+  /// less than sleep_speed times a frame (under 0.1 mm at 60 Hz).
+  double sleep_speed = 5e-3;
+  /// [s] How long every speed must stay below sleep_speed: longer than a slow swing's turning point
+  /// (a pendulum of length L stands still for a fraction of sqrt(L/g) ~ 0.3 s at 1 m).
+  double sleep_time = 1.0;
 };
 /// Throws sinew::Error naming the first setting out of range; System::step and advance call it.
 void validate(const StepSettings& settings);
@@ -288,7 +302,29 @@ class System {
   ///    that used it (deterministic: counts, not clocks); its solves stop at kImplicitRelativeTolerance
   ///    of the scene's speed (scene_speed()) unless cg_tolerance is looser;
   ///  - implicit_elasticity set by the user: as set, in substeps bounded by the turn the same way.
+  ///
+  /// Sleeping (StepSettings::sleep): after a frame that leaves the scene at rest for sleep_time, the
+  /// system falls asleep (velocities of dynamic rows and bodies set to zero, the state recorded); an
+  /// asleep advance() evaluates no force and solves nothing: it checks, in one pass, that nothing woke
+  /// the system, holds the state, moves time on and returns StepStats::asleep. It wakes (and steps
+  /// this frame as usual) when: a free, soft-spring or kinematic particle's position or velocity, or
+  /// any mass, is not exactly as recorded (the caller set it); gravity changed; the topology changed
+  /// (needs_set_up()); a kinematic body moved or has a twist; a dynamic body's fastest point moves
+  /// faster than sleep_speed, its frame moved from the recorded one by more than sleep_speed times
+  /// the frame, or its applied force or torque changed by more than would give it sleep_speed over
+  /// sleep_time; a binding spring was switched or moved, a
+  /// collision surface or filter changed or an impulse applied through this class; sleep was turned
+  /// off; or wake() was called (the Bullet coupling calls it when a moving body approaches).
   StepStats advance(double frame_dt);
+  /// True while the system sleeps (see advance()).
+  bool asleep() const { return m_asleep; }
+  /// Wakes the system: the next advance() steps. Also restarts the count towards sleep_time.
+  void wake();
+  /// The box holding every particle that is not removed, recorded when the system fell asleep (what
+  /// a rigid solver tests its moving bodies against); empty while awake.
+  const Eigen::AlignedBox3d& sleeping_bounds() const { return m_sleep.bounds; }
+  /// How long (simulated seconds) the scene has been at rest by advance()'s test, while awake.
+  double rest_time() const { return m_rest_time; }
   /// advance() stays explicit up to this many substeps per frame.
   static constexpr int kCheapExplicitSubsteps = 2;
   /// When advance() chooses implicit elasticity, its solves stop at this fraction of the scene's speed
@@ -376,6 +412,30 @@ class System {
   /// sqrt(2 E / M): E = visible_energy(), M the dynamic mass (particles and bodies).
   double scene_speed(double energy) const;
   StepStats run_substeps(double frame_dt, int substeps);
+  /// advance() while awake: the scheme chosen for the frame and its substeps.
+  StepStats advance_awake(double frame_dt);
+  /// Whether the state after a frame is at rest by StepSettings::sleep_speed (advance()'s test).
+  bool at_rest() const;
+  /// Zeroes the dynamic velocities and records what the wake test compares against.
+  void fall_asleep();
+  /// Whether nothing woke the system since it fell asleep (advance()'s list), for a frame of frame_dt.
+  bool still_asleep(double frame_dt) const;
+  /// The distance from rigid body b's centre of its farthest point that matters to the deformables:
+  /// its hard-bound points and its radius of gyration.
+  double body_reach(Index b) const;
+  // Sleeping (StepSettings::sleep): the state recorded when the system fell asleep.
+  struct SleepRecord {
+    Vectors3 x, v;
+    VectorXd mass;
+    Vectors3 body_x, body_force, body_torque;
+    std::vector<Quat> body_q;
+    VectorXd body_reach;
+    Vec3 gravity = Vec3::Zero();
+    Eigen::AlignedBox3d bounds;
+  };
+  SleepRecord m_sleep;
+  bool m_asleep = false;
+  double m_rest_time = 0.0;
   bool m_finalized = false;
   bool m_topology_changed = false;  // the topology changed since set-up: redo it before the next step
   std::uint64_t m_set_ups = 0;

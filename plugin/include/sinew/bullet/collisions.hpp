@@ -68,6 +68,13 @@ class BulletCollisions final : public CollisionSource {
   };
   const std::vector<DynamicContact>& dynamic_contacts() const { return m_dynamic_contacts; }
   double friction() const { return m_settings.friction; }
+  double thickness() const { return m_settings.thickness; }
+  /// Forgets the last process() call's contacts (a tick in which the system slept ran no step 3).
+  void forget_contacts() {
+    m_dynamic_contacts.clear();
+    m_deepest = 0.0;
+    m_contacts = 0;
+  }
   /// Applies the summed impulses on dynamic bodies without a rigid-body particle, once each.
   void apply_pending_impulses();
   /// Forgets them (the tick that gathered them failed).

@@ -182,6 +182,8 @@ class Coupling {
   /// The offset in the merged frame of a point at `local` in Bullet's frame of body b.
   Vec3 merged_offset(Index b, const Vec3& local) const;
   void copy_state_in();
+  /// While the system sleeps: wakes it when a moving Bullet body may reach the deformables this tick.
+  void wake_on_approach(double dt);
   /// The equality rows of Bullet's joints on coupled bodies, for the step's solves (JointRow).
   void copy_joints_in(double dt);
   /// Step 6, first half: Bullet's bodies get the velocity that moves them along the Newmark step.
