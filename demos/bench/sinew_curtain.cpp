@@ -184,7 +184,8 @@ class SinewCurtain final : public SinewCurtainRun {
           << " N/m, damping ratio " << m_settings.binding_spring_damping_ratio << ") instead of hard bindings";
     else
       out << "the bound nodes' " << m_bound_mass * 1e3
-          << " g is not added to the rings (Bullet owns their mass properties; the peers keep it on the nodes)";
+          << " g is the rings' (merged into their mass and inertia, which Bullet is handed; the peers keep it on the "
+             "nodes)";
     return out.str();
   }
 
