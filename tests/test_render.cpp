@@ -6,7 +6,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cctype>
 #include <set>
+#include <string>
 
 namespace sinew {
 namespace {
@@ -92,7 +94,12 @@ TEST_P(RenderScene, ClothWhereItsBoxSaysAndStableBetweenRuns) {
 }
 
 INSTANTIATE_TEST_SUITE_P(EveryDemo, RenderScene, ::testing::ValuesIn(scenes::bullet_scene_names()),
-                         [](const auto& param_info) { return param_info.param; });
+                         [](const auto& param_info) {
+                           std::string name = param_info.param;  // a test name takes letters, digits and _
+                           for (char& c : name)
+                             if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
+                           return name;
+                         });
 
 // The camera's projection against a hand computation: the target lands in the image's centre, a point
 // one unit to the camera's right lands right of it, and depth grows away from the eye.
