@@ -180,11 +180,80 @@ void Constraints::project_joint_groups(GeneralizedVector& u, bool impose_targets
   }
 }
 
+// Contact rows (JointRow::unilateral) bound the twists from one side, J t >= b, and the step holds
+// the ones that push as equalities. Their targets need not agree: a ring resting on a rod, four points
+// of its polygon in the rod, had rows of rank two or three with push-out targets of 0.07 and 0.33 m/s,
+// whose least-norm twists on all four were 1e7 m/s. Targets that agree (the least-norm twists on the
+// rows' well-conditioned span, singular values above 1e-3 of the largest, meet them) are kept; otherwise the group
+// finds the least-norm twists t* with its joint rows met and its contacts at or above their targets (min |t|^2 / 2, a
+// small quadratic programme, by Gauss-Seidel on its dual: t = J^T lambda, lambda >= 0 on the contacts, at most
+// kQpPasses passes), and holds every row at J t*: targets that agree by construction, each contact at or above its own.
+void Constraints::agree_contact_targets(JointGroup& group, const std::vector<JointRow>& rows,
+                                        const std::vector<Index>* tangent_of) {
+  const Index m = group.J.rows();
+  group.svd.compute(group.J, Eigen::ComputeThinU | Eigen::ComputeThinV);
+  const VectorXd& sigma = group.svd.singularValues();
+  Index rank = 0;
+  while (rank < sigma.size() && sigma[rank] > 1e-3 * sigma[0]) ++rank;
+  VectorXd c = group.svd.matrixU().leftCols(rank).transpose() * group.t;
+  c.array() /= sigma.head(rank).array();
+  const VectorXd least = group.svd.matrixV().leftCols(rank) * c;
+  const double scale = std::max(1.0, group.t.cwiseAbs().maxCoeff());
+  if ((group.J * least - group.t).cwiseAbs().maxCoeff() <= 1e-9 * scale) return;
+  // A sticking row's multiplier stays within mu times its normal's (Coulomb's pyramid): held rigidly,
+  // sticking can forbid what pushing out needs, and the programme has no solution.
+  m_local_row.assign(rows.size(), -1);
+  for (Index i = 0; i < m; ++i) m_local_row[static_cast<std::size_t>(group.rows[i])] = i;
+  auto normal_of = [&](Index i) -> Index {
+    if (!tangent_of) return -1;
+    const Index n = (*tangent_of)[static_cast<std::size_t>(group.rows[i])];
+    return n < 0 ? -1 : m_local_row[static_cast<std::size_t>(n)];
+  };
+  VectorXd lambda = VectorXd::Zero(m), t = VectorXd::Zero(group.J.cols());
+  const VectorXd norm2 = group.J.rowwise().squaredNorm();
+  for (int pass = 0; pass < kQpPasses; ++pass) {
+    double change = 0.0;
+    for (Index i = 0; i < m; ++i) {
+      if (!(norm2[i] > 0.0)) continue;
+      double next = lambda[i] + (group.t[i] - group.J.row(i).dot(t)) / norm2[i];
+      if (rows[group.rows[i]].unilateral) next = std::max(next, 0.0);
+      if (const Index n = normal_of(i); n >= 0) {
+        const double bound = rows[group.rows[n]].friction * lambda[n];
+        next = std::clamp(next, -bound, bound);
+      }
+      const double d = next - lambda[i];
+      if (d == 0.0) continue;
+      lambda[i] = next;
+      t.noalias() += d * group.J.row(i).transpose();
+      change = std::max(change, std::abs(d) * std::sqrt(norm2[i]));
+    }
+    if (change <= 1e-14 * std::max(1.0, t.norm())) break;
+  }
+  group.t.noalias() = group.J * t;
+}
+
+// J = U S V^T (the group's thin SVD), so J^T lambda = r gives lambda = U S^-1 V^T r over the rank.
+void Constraints::joint_multipliers(const GeneralizedVector& r, std::size_t rows, VectorXd& lambda) const {
+  lambda.setZero(static_cast<Index>(rows));
+  for (std::size_t gi = 0; gi < m_joint_group_count; ++gi) {
+    const JointGroup& g = m_joint_groups[gi];
+    const Index k = static_cast<Index>(g.bodies.size()), rank = g.basis.cols();
+    if (rank == 0) continue;
+    VectorXd r_g(6 * k);
+    for (Index j = 0; j < k; ++j) r_g.segment<6>(6 * j) = r.rigid.col(g.bodies[j]);
+    VectorXd c = g.basis.transpose() * r_g;
+    c.array() /= g.svd.singularValues().head(rank).array();
+    const VectorXd l = g.svd.matrixU().leftCols(rank) * c;
+    for (std::size_t i = 0; i < g.rows.size(); ++i) lambda[g.rows[i]] = l[static_cast<Index>(i)];
+  }
+}
+
 // Joint rows J u = t on the dynamic bodies (kinematic bodies' twists moved to t). The CG then works
 // in the rows' null space, like the collision normals: P = I - Q Q^T with Q an orthonormal basis of
 // the rows (redundant rows, as two joints on one axis give, drop out by rank), and the joints'
 // reactions are the multipliers J^T lambda the projection removes.
-void Constraints::prepare_joints(const std::vector<JointRow>& rows, const RigidBodyParticles& bodies) {
+void Constraints::prepare_joints(const std::vector<JointRow>& rows, const RigidBodyParticles& bodies,
+                                 const std::vector<Index>* tangent_of) {
   m_joint_group_count = 0;
   if (rows.empty()) return;
   const Index body_count = m_unknowns->r;
@@ -243,6 +312,8 @@ void Constraints::prepare_joints(const std::vector<JointRow>& rows, const RigidB
         }
       }
     }
+    if (std::any_of(group.rows.begin(), group.rows.end(), [&](Index r) { return rows[r].unilateral; }))
+      agree_contact_targets(group, rows, tangent_of);
     // The SVD keeps its work space between steps (Eigen reallocates only when the shape changes).
     group.svd.compute(group.J, Eigen::ComputeThinU | Eigen::ComputeThinV);
     const VectorXd& sigma = group.svd.singularValues();

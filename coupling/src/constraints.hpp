@@ -25,8 +25,16 @@ class Constraints {
 
   /// Groups the dynamic bodies that joint rows connect and factors each group's rows (SVD), once per
   /// step: the orthonormal basis of the rows' span and the least-norm twists meeting the targets.
-  void prepare_joints(const std::vector<JointRow>& rows, const RigidBodyParticles& bodies);
+  /// `tangent_of` (optional, per row): for a contact's sticking row, the index of its contact's normal
+  /// row (unilateral, with the friction coefficient), else -1; their multipliers stay in Coulomb's
+  /// pyramid where targets must be reconciled (agree_contact_targets).
+  void prepare_joints(const std::vector<JointRow>& rows, const RigidBodyParticles& bodies,
+                      const std::vector<Index>* tangent_of = nullptr);
   bool has_joints() const { return m_joint_group_count > 0; }
+  /// The multiplier of each row passed to prepare_joints (in their order), from r = S t - c on the
+  /// twists: J^T lambda = r on each group, least norm (rows between prescribed bodies get 0). For a
+  /// solve that held the rows, r is the reaction the rows exert, J^T lambda.
+  void joint_multipliers(const GeneralizedVector& r, std::size_t rows, VectorXd& lambda) const;
 
   /// Zeroes rows without unknowns, then project_constraints.
   void project(GeneralizedVector& u) const;
@@ -70,6 +78,11 @@ class Constraints {
     VectorXd t, coefficients;
     Eigen::JacobiSVD<Eigen::MatrixXd> svd;
   };
+  /// A group with contact rows: its rows' targets made to agree (see constraints.cpp).
+  void agree_contact_targets(JointGroup& group, const std::vector<JointRow>& rows,
+                             const std::vector<Index>* tangent_of);
+  std::vector<Index> m_local_row;  // agree_contact_targets' scratch: each row's place in its group
+  static constexpr int kQpPasses = 200;
   // The first m_joint_group_count entries are this step's groups; entries past it keep their storage.
   std::vector<JointGroup> m_joint_groups;
   std::size_t m_joint_group_count = 0;

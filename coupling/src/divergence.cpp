@@ -39,12 +39,15 @@ void DivergenceCheck::begin_step(const StepModel& s, const StepRecord& r, double
     hi = hi.cwiseMax(s.particles.x.col(i));
     mass += u.dof_mass[i];
   }
+  double body_size = 0.0;  // a lone body's extent is its own: twice its largest radius of gyration
   for (Index b = 0; b < u.r; ++b) {
     lo = lo.cwiseMin(s.bodies.x.col(b));
     hi = hi.cwiseMax(s.bodies.x.col(b));
-    if (u.dynamic_body[b]) mass += s.bodies.mass[b];
+    if (!u.dynamic_body[b]) continue;
+    mass += s.bodies.mass[b];
+    body_size = std::max(body_size, 2.0 * std::sqrt(s.bodies.inertia.col(b).maxCoeff() / s.bodies.mass[b]));
   }
-  const double extent = (hi - lo).allFinite() ? (hi - lo).norm() : 0.0;
+  const double extent = std::max((hi - lo).allFinite() ? (hi - lo).norm() : 0.0, body_size);
   const double floor_speed = 1e-3 * extent / dt;
   m_energy_floor = 0.5 * mass * floor_speed * floor_speed;
   m_start_springs = s.springs.potential_energy(s.particles.x);

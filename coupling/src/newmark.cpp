@@ -76,10 +76,15 @@ StepStats Newmark::step(const StepModel& s, double dt) {
   // leaves the state of its start, so the caller can change what diverged and step again.
   try {
     m_divergence.begin_step(s, record(), dt);
-    m_constraints.prepare_joints(s.joint_rows, s.bodies);
+    predict_contacts(s, dt);
+    prepare_rows(s, dt, true);
 
     auto t = Clock::now();
     implicit_half_velocity(s, dt, stats);
+    for (int pass = 1; pass < kContactPasses && revise_contacts(s, dt); ++pass) {
+      ++stats.contact_passes;
+      implicit_half_velocity(s, dt, stats);
+    }
     check_finite(s, "step 1 (implicit half velocity)");
     stats.ms.implicit_half_velocity = ms_since(t);
 
@@ -105,6 +110,7 @@ StepStats Newmark::step(const StepModel& s, double dt) {
 
     // Divergence: some item's kinetic energy far above the scene's energy budget (divergence.hpp).
     m_divergence.end_step(s, record(), m_step_count, m_g, m_scratch_wrench);
+    advance_contact_gaps(s, dt);
   } catch (...) {
     restore_start_state(s);
     throw;
@@ -680,6 +686,7 @@ void Newmark::process_collisions(const StepModel& s, double dt) {
     s.soft.push_drift(p, s.bodies, s.hard, s.effective_mass, m_body_L_n);
   }
   m_constraints.prepare_collisions();
+  if (m_has_contacts) collide_contacts(s, dt);
   s.hard.clamp_positions(p.x, s.bodies.x);
   s.hard.clamp_velocities(p.v, s.bodies.v, s.bodies.w);
   s.soft.synchronize(p, true, true);
@@ -772,12 +779,29 @@ void Newmark::extrapolate_velocity(const StepModel& s) {
     bodies.w.col(b) = bodies.world_inverse_inertia(b) * L;
   }
   const bool settle = s.settings.settle_stiff_binding_springs && s.springs.size() > 0;
-  if (settle) {  // what the settling changes, for the history below (m_product is free until step 1)
+  const bool passes = settle || m_has_contacts;
+  if (passes) {  // what the passes change, for the history below (m_product is free until step 1)
     m_product.particles = p.v;
     m_product.rigid.topRows<3>() = bodies.v;
     m_product.rigid.bottomRows<3>() = bodies.w;
   }
-  for (int pass = 0; pass < (settle ? kSettlePasses : 1); ++pass) {
+  if (m_has_contacts) {
+    prepare_rows(s, m_dt, false);  // the contacts hold as inequalities below, not as the solves' equalities
+    const auto count = static_cast<Index>(s.joint_rows.size());
+    m_end_normal.setZero(count);
+    m_end_friction.setZero(3, count);
+    // Each contact's bound at the end-of-step gap (the gap the step's motion left).
+    m_predicted_v = m_twist_half.topRows<3>();
+    m_predicted_w = m_twist_half.bottomRows<3>();
+    m_end_bound.setZero(count);
+    for (Index i = 0; i < count; ++i) {
+      const JointRow& row = s.joint_rows[static_cast<std::size_t>(i)];
+      if (row.unilateral)
+        m_end_bound[i] =
+            row.target - std::max(row.gap + m_dt * row_velocity(row, m_predicted_v, m_predicted_w), 0.0) / m_dt;
+    }
+  }
+  for (int pass = 0; pass < (m_has_contacts ? kContactEndPasses : settle ? kSettlePasses : 1); ++pass) {
     if (settle) {
       s.hard.update_rigid_offsets(bodies);
       settle_stiff_binding_springs(s);
@@ -791,10 +815,11 @@ void Newmark::extrapolate_velocity(const StepModel& s) {
       bodies.v = m_y.rigid.topRows<3>();
       bodies.w = m_y.rigid.bottomRows<3>();
     }
+    if (m_has_contacts) hold_contacts_at_step_end(s);
   }
-  if (settle) {
-    // Step 1's extrapolated guess reads the motion's trend from v^n - v^{n-1/2}: the settling is no
-    // part of that trend, so the last half-step velocities move with it.
+  if (passes) {
+    // Step 1's extrapolated guess reads the motion's trend from v^n - v^{n-1/2}: the settling and the
+    // contacts' end impulses are no part of that trend, so the last half-step velocities move with them.
     m_last_half.particles += p.v - m_product.particles;
     m_last_half.rigid.topRows<3>() += bodies.v - m_product.rigid.topRows<3>();
     m_last_half.rigid.bottomRows<3>() += bodies.w - m_product.rigid.bottomRows<3>();
@@ -847,6 +872,319 @@ void Newmark::settle_stiff_binding_springs(const StepModel& s) {
     const Vec3 j = -m * speed * n;
     s.hard.apply_impulse(a, j, p, bodies);
     s.hard.apply_impulse(b, -j, p, bodies);
+  }
+}
+
+// ---- contacts between rigid bodies ------------------------------------------------------------
+//
+// A rigid solver's contact between two bodies (JointRow::unilateral) is a row J t >= b: the bodies'
+// relative normal velocity at the point may close the present gap over the step, b = -max(gap, 0) / dt
+// (plus the row's own target, a push-out for an overlap), and no more. A contact that only the rigid
+// solver saw, after the step, would move a body off the step's update by (impulse / m) dt, and a stiff
+// binding spring on it would kick that back every step; here the contacts are held in the step's
+// solves with everything else, so a heavy ball lands in a net of light rods on stiff springs as one
+// system. Which contacts hold (the solves hold equalities, as for the collision constraints of step 3):
+//   - predicted: a contact holds in step 1 when the relative velocity its bodies would have after a
+//     step of their applied forces alone, t^n + dt M^-1 f_ext, reaches b within a step of gravity
+//     (a resting contact holds at once);
+//   - added: a free contact that step 1's answer crosses (J t < b; the springs and joints the
+//     prediction left out pushed it there) holds, and step 1 is solved again from t^n, up to
+//     kContactPasses solves. A held contact is not released within the step even where it pulls (a
+//     ball the net throws up sticks for that step and leaves at the next one, as a particle's
+//     collision constraint does): released by the sign of their multipliers, the ball and net rods
+//     cycled between sets and the net gained 100 J at a landing.
+// Friction: a held contact with a coefficient first sticks, two more rows holding its relative
+// tangential velocity at the point to zero (prepare_rows); when the tangential multipliers of a pair
+// of bodies' sticking contacts leave Coulomb's cone around their summed normal multipliers (from J^T
+// lambda = S t - c, Constraints::joint_multipliers; summed, since redundant rows, a box on four
+// corners, split a load arbitrarily), the pair slides and step 1 is solved again without those rows.
+// Held rows whose targets disagree are reconciled per group, sticking within Coulomb's pyramid
+// (Constraints::agree_contact_targets). Step 3 makes each held contact the step closes an inelastic
+// collision (collide_contacts), step 4 holds step 1's set. At the step's end (step 5's passes), each
+// held contact keeps v^{n+1} from approaching (J t >= b at the end-of-step gap) by pushes only, and
+// takes Coulomb friction up to mu times the impulse it carried over the step (twice its share of its
+// pair's step-1 load, an impulse over dt/2, plus its end pushes), in Gauss-Seidel passes with the
+// springs' settling and the joints: a sliding contact's friction acts there, on the velocities, a
+// step late (the step's positions slide without it; a box sliding at 2 m/s with mu 0.5 stops within
+// 2% of v^2 / (2 mu g)). Each row's gap then moves by dt J t^{n+1/2}, the step's relative motion
+// (linearised at the row's levers).
+
+double Newmark::row_velocity(const JointRow& row, const Vectors3& v, const Vectors3& w) {
+  double u = row.j_a.head<3>().dot(v.col(row.body_a)) + row.j_a.tail<3>().dot(w.col(row.body_a));
+  if (row.body_b >= 0) u += row.j_b.head<3>().dot(v.col(row.body_b)) + row.j_b.tail<3>().dot(w.col(row.body_b));
+  return u;
+}
+
+void Newmark::predict_contacts(const StepModel& s, double dt) {
+  const std::vector<JointRow>& rows = s.joint_rows;
+  m_has_contacts = std::any_of(rows.begin(), rows.end(), [](const JointRow& r) { return r.unilateral; });
+  m_contact_active.assign(rows.size(), 0);
+  m_contact_sliding.assign(rows.size(), 0);
+  // Pairs of bodies that were still slipping at the last step's end start this one sliding (no
+  // sticking rows to try and release again: a ring drawn along its rod would solve step 1 twice per
+  // step); the others start sticking.
+  for (std::size_t i = 0; i < rows.size(); ++i)
+    if (rows[i].unilateral && std::find(m_slipping_pairs.begin(), m_slipping_pairs.end(),
+                                        std::pair{rows[i].body_a, rows[i].body_b}) != m_slipping_pairs.end())
+      m_contact_sliding[i] = 1;
+  m_contact_impulse.setZero(static_cast<Index>(rows.size()));
+  if (!m_has_contacts) return;
+  const RigidBodyParticles& bodies = s.bodies;
+  m_predicted_v = bodies.v;
+  m_predicted_w = bodies.w;
+  for (Index b = 0; b < m_unknowns.r; ++b) {
+    if (!m_unknowns.dynamic_body[b]) continue;
+    Vec3 a = bodies.force.col(b) / bodies.mass[b];
+    if (bodies.gravity[b]) a += s.gravity;
+    m_predicted_v.col(b) += dt * a;
+    m_predicted_w.col(b) += dt * (bodies.world_inverse_inertia(b) * Vec3(bodies.torque.col(b)));
+  }
+  const double reach = s.gravity.norm() * dt;
+  for (std::size_t i = 0; i < rows.size(); ++i)
+    if (rows[i].unilateral)
+      m_contact_active[i] = row_velocity(rows[i], m_predicted_v, m_predicted_w) - contact_target(rows[i], dt) <= reach;
+}
+
+// The rows the solves hold: the bilateral joint rows and, with `contacts`, the active contacts with
+// their step targets.
+void Newmark::prepare_rows(const StepModel& s, double dt, bool contacts) {
+  const std::vector<JointRow>& rows = s.joint_rows;
+  m_rows.clear();
+  m_row_source.clear();
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    if (rows[i].unilateral) continue;
+    m_rows.push_back(rows[i]);
+    m_row_source.push_back(static_cast<Index>(i));
+  }
+  if (contacts)
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      if (!rows[i].unilateral || !m_contact_active[i]) continue;
+      m_rows.push_back(rows[i]);
+      m_rows.back().target = contact_target(rows[i], dt);
+      m_row_source.push_back(static_cast<Index>(i));
+      if (!(rows[i].friction > 0.0) || m_contact_sliding[i]) continue;
+      // Sticking: no relative tangential motion at the point (two bilateral rows right after the
+      // normal one), while the multipliers stay within the friction cone (revise_contacts).
+      const JointRow& row = rows[i];
+      const Vec3 n = row.j_a.head<3>();
+      const Vec3 t1 = n.unitOrthogonal(), t2 = n.cross(t1);
+      const Vec3 lever_a = row.point - Vec3(s.bodies.x.col(row.body_a));
+      const Vec3 lever_b = row.body_b >= 0 ? Vec3(row.point - Vec3(s.bodies.x.col(row.body_b))) : Vec3::Zero();
+      for (const Vec3& t : {t1, t2}) {
+        JointRow tangent;
+        tangent.body_a = row.body_a;
+        tangent.j_a << t, lever_a.cross(t);
+        tangent.body_b = row.body_b;
+        if (row.body_b >= 0) tangent.j_b << -t, -lever_b.cross(t);
+        m_rows.push_back(tangent);
+        m_row_source.push_back(-1 - static_cast<Index>(i));  // a tangent of contact i
+      }
+    }
+  m_tangent_of.assign(m_rows.size(), -1);
+  for (std::size_t j = 0; j < m_rows.size(); ++j)
+    if (m_row_source[j] < 0)
+      m_tangent_of[j] = m_row_source[j - 1] < 0 ? m_tangent_of[j - 1] : static_cast<Index>(j - 1);
+  m_constraints.prepare_joints(m_rows, s.bodies, &m_tangent_of);
+}
+
+// After step 1: each held contact's multiplier (for friction), and the free contacts the answer
+// crosses by more than ten times the solve's tolerance (relative to the speeds of the row's bodies)
+// held. On a change the rows are prepared again and the state is back at t^n for step 1 to be solved
+// again.
+bool Newmark::revise_contacts(const StepModel& s, double dt) {
+  if (!m_has_contacts) return false;
+  m_system.set(s, m_last_k, m_body_I);
+  m_system.apply(m_y, m_product);
+  m_product.particles -= m_c.particles;
+  m_product.rigid -= m_c.rigid;
+  m_constraints.joint_multipliers(m_product, m_rows.size(), m_lambda);
+  const double tolerance = 10.0 * s.settings.cg_tolerance;
+  const std::vector<JointRow>& rows = s.joint_rows;
+  bool changed = false;
+  // Per pair of touching bodies: the normal multipliers' sum (signed: the held rows of a box on four
+  // corners may pull at some, and the sum is the pair's load) and positive part, and the tangential
+  // impulse of its sticking contacts (redundant rows split a load arbitrarily; the pair's sums do not).
+  // Each contact's normal impulse is its share of the pair's load, in proportion to its push.
+  m_pairs.clear();
+  for (std::size_t j = 0; j < m_rows.size(); ++j) {
+    const Index i = m_row_source[j];
+    if (i < 0 || !rows[static_cast<std::size_t>(i)].unilateral) continue;
+    const JointRow& row = rows[static_cast<std::size_t>(i)];
+    const double lambda = m_lambda[static_cast<Index>(j)];
+    auto pair = std::find_if(m_pairs.begin(), m_pairs.end(),
+                             [&](const ContactPair& p) { return p.a == row.body_a && p.b == row.body_b; });
+    if (pair == m_pairs.end())
+      pair = m_pairs.insert(m_pairs.end(), {row.body_a, row.body_b, 0.0, 0.0, Vec3::Zero(), kInfinity, false});
+    pair->load += lambda;
+    pair->push += std::max(lambda, 0.0);
+    pair->friction = std::min(pair->friction, row.friction);
+    if (j + 2 < m_rows.size() && m_row_source[j + 1] == -1 - i) {
+      pair->tangential += m_lambda[static_cast<Index>(j + 1)] * m_rows[j + 1].j_a.head<3>() +
+                          m_lambda[static_cast<Index>(j + 2)] * m_rows[j + 2].j_a.head<3>();
+      pair->sticking = true;
+    }
+  }
+  // A pair whose sticking contacts' tangential impulse leaves Coulomb's cone slides from now on: its
+  // contacts lose their sticking rows, and take their friction at the step's end.
+  for (const ContactPair& pair : m_pairs) {
+    const double load = std::max(pair.load, 0.0);
+    const bool slides = pair.sticking && pair.tangential.norm() > pair.friction * load * (1.0 + tolerance);
+    for (std::size_t j = 0; j < m_rows.size(); ++j) {
+      const Index i = m_row_source[j];
+      if (i < 0 || !rows[static_cast<std::size_t>(i)].unilateral) continue;
+      const JointRow& row = rows[static_cast<std::size_t>(i)];
+      if (row.body_a != pair.a || row.body_b != pair.b) continue;
+      m_contact_impulse[i] = pair.push > 0.0 ? load * std::max(m_lambda[static_cast<Index>(j)], 0.0) / pair.push : 0.0;
+      if (slides && row.friction > 0.0 && !m_contact_sliding[static_cast<std::size_t>(i)]) {
+        m_contact_sliding[static_cast<std::size_t>(i)] = 1;
+        changed = true;
+      }
+    }
+  }
+  m_predicted_v = m_y.rigid.topRows<3>();
+  m_predicted_w = m_y.rigid.bottomRows<3>();
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const JointRow& row = rows[i];
+    if (!row.unilateral || m_contact_active[i]) continue;
+    double speed = std::abs(contact_target(row, dt));
+    speed += row.j_a.norm() * m_y.rigid.col(row.body_a).norm();
+    if (row.body_b >= 0) speed += row.j_b.norm() * m_y.rigid.col(row.body_b).norm();
+    if (row_velocity(row, m_predicted_v, m_predicted_w) < contact_target(row, dt) - tolerance * speed) {
+      m_contact_active[i] = 1;
+      changed = true;
+    }
+  }
+  if (!changed) return false;
+  prepare_rows(s, dt, true);
+  s.particles.v = m_v_n;
+  s.bodies.v = m_body_v_n;
+  s.bodies.w = m_body_w_n;
+  return true;
+}
+
+// Step 3 for the contacts: each held contact that the step's motion closes (its gap at the step's end
+// within the solve's reach of 0) is a collision, inelastic as step 3's are for particles: v^n -> v~^n
+// with its approach removed (J t~^n >= the row's own target), by impulses on the start velocities and
+// momenta, in Gauss-Seidel passes. Without it step 5's v^{n+1} = 2 v^{n+1/2} - v~^n would reflect
+// the approach (a box dropped on the ground would bounce back at the speed it fell with).
+void Newmark::collide_contacts(const StepModel& s, double dt) {
+  RigidBodyParticles& bodies = s.bodies;
+  const std::vector<JointRow>& rows = s.joint_rows;
+  auto dynamic = [&](Index b) { return b >= 0 && m_unknowns.dynamic_body[b]; };
+  for (Index b = 0; b < m_unknowns.r; ++b)
+    if (m_unknowns.dynamic_body[b]) bodies.w.col(b) = m_body_I_n[b].inverse() * Vec3(m_body_L_n.col(b));
+  m_predicted_v = m_twist_half.topRows<3>();
+  m_predicted_w = m_twist_half.bottomRows<3>();
+  m_end_normal.setZero(static_cast<Index>(rows.size()));
+  for (int pass = 0; pass < kSettlePasses; ++pass)
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      if (!m_contact_active[i]) continue;
+      const JointRow& row = rows[i];
+      const auto r = static_cast<Index>(i);
+      const double closing = row.gap + dt * row_velocity(row, m_predicted_v, m_predicted_w);
+      if (closing > 10.0 * s.settings.cg_tolerance * dt) continue;  // the contact is not reached this step
+      double k = 0.0;
+      for (const auto& [b, j] : {std::pair{row.body_a, row.j_a}, std::pair{row.body_b, row.j_b}})
+        if (dynamic(b))
+          k += j.head<3>().squaredNorm() / bodies.mass[b] + j.tail<3>().dot(m_body_I_n[b].inverse() * j.tail<3>());
+      if (!(k > 0.0)) continue;
+      const double dn =
+          std::max(m_end_normal[r] + (row.target - row_velocity(row, bodies.v, bodies.w)) / k, 0.0) - m_end_normal[r];
+      if (dn == 0.0) continue;
+      m_end_normal[r] += dn;
+      for (const auto& [b, j] : {std::pair{row.body_a, row.j_a}, std::pair{row.body_b, row.j_b}})
+        if (dynamic(b)) {
+          bodies.v.col(b) += j.head<3>() * (dn / bodies.mass[b]);
+          m_body_L_n.col(b) += j.tail<3>() * dn;
+          bodies.w.col(b) = m_body_I_n[b].inverse() * Vec3(m_body_L_n.col(b));
+        }
+    }
+}
+
+// One Gauss-Seidel pass over the held contacts at the step's end (see above), in the rows' order.
+void Newmark::hold_contacts_at_step_end(const StepModel& s) {
+  RigidBodyParticles& bodies = s.bodies;
+  const std::vector<JointRow>& rows = s.joint_rows;
+  auto dynamic = [&](Index b) { return b >= 0 && m_unknowns.dynamic_body[b]; };
+  auto push = [&](Index b, const Vec3& j, const Vec3& lever) {  // an impulse j at `lever` from b's centre
+    if (!dynamic(b)) return;
+    bodies.v.col(b) += j / bodies.mass[b];
+    bodies.w.col(b) += bodies.world_inverse_inertia(b) * lever.cross(j);
+  };
+  auto inverse_mass = [&](Index b, const Vec3& lever, const Vec3& u) {
+    if (!dynamic(b)) return 0.0;
+    const Vec3 t = lever.cross(u);
+    return 1.0 / bodies.mass[b] + t.dot(bodies.world_inverse_inertia(b) * t);
+  };
+  auto point_velocity = [&](Index b, const Vec3& lever) {
+    return b < 0 ? Vec3::Zero() : Vec3(Vec3(bodies.v.col(b)) + Vec3(bodies.w.col(b)).cross(lever));
+  };
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    if (!m_contact_active[i]) continue;
+    const JointRow& row = rows[i];
+    const auto r = static_cast<Index>(i);
+    const Vec3 n = row.j_a.head<3>();
+    const Vec3 lever_a = row.point - Vec3(bodies.x.col(row.body_a));
+    const Vec3 lever_b = row.body_b >= 0 ? Vec3(row.point - Vec3(bodies.x.col(row.body_b))) : Vec3::Zero();
+    // Normal: pushes only, to the end-of-step gap's bound.
+    const double bound = m_end_bound[r];
+    double k = 0.0;
+    for (const auto& [b, j] : {std::pair{row.body_a, row.j_a}, std::pair{row.body_b, row.j_b}})
+      if (dynamic(b))
+        k +=
+            j.head<3>().squaredNorm() / bodies.mass[b] + j.tail<3>().dot(bodies.world_inverse_inertia(b) * j.tail<3>());
+    if (!(k > 0.0)) continue;
+    const double speed = row_velocity(row, bodies.v, bodies.w);
+    const double dn = std::max(m_end_normal[r] + (bound - speed) / k, 0.0) - m_end_normal[r];
+    m_end_normal[r] += dn;
+    for (const auto& [b, j] : {std::pair{row.body_a, row.j_a}, std::pair{row.body_b, row.j_b}})
+      if (dynamic(b)) {
+        bodies.v.col(b) += j.head<3>() * (dn / bodies.mass[b]);
+        bodies.w.col(b) += bodies.world_inverse_inertia(b) * Vec3(j.tail<3>() * dn);
+      }
+    // Friction: the accumulated tangential impulse within the disc of mu times the normal impulse.
+    if (!(row.friction > 0.0)) continue;
+    Vec3 slip = point_velocity(row.body_a, lever_a) - point_velocity(row.body_b, lever_b);
+    slip -= n.dot(slip) * n;
+    const double speed_t = slip.norm();
+    if (!(speed_t > 0.0)) continue;
+    const Vec3 u = slip / speed_t;
+    const double k_t = inverse_mass(row.body_a, lever_a, u) + inverse_mass(row.body_b, lever_b, u);
+    if (!(k_t > 0.0)) continue;
+    Vec3 friction = Vec3(m_end_friction.col(r)) - slip / k_t;
+    const double limit = row.friction * (2.0 * m_contact_impulse[r] + m_end_normal[r]);
+    if (friction.norm() > limit) friction *= limit / friction.norm();
+    const Vec3 j = friction - Vec3(m_end_friction.col(r));
+    m_end_friction.col(r) = friction;
+    push(row.body_a, j, lever_a);
+    push(row.body_b, -j, lever_b);
+  }
+}
+
+void Newmark::advance_contact_gaps(const StepModel& s, double dt) {
+  m_slipping_pairs.clear();
+  if (!m_has_contacts) return;
+  m_predicted_v = m_twist_half.topRows<3>();
+  m_predicted_w = m_twist_half.bottomRows<3>();
+  for (JointRow& row : s.joint_rows)
+    if (row.unilateral) row.gap += dt * row_velocity(row, m_predicted_v, m_predicted_w);
+  // The sliding pairs still slipping at the step's end (faster than a tenth of what gravity gives in a
+  // step): the next step starts them sliding.
+  const RigidBodyParticles& bodies = s.bodies;
+  const double still = 0.1 * s.gravity.norm() * dt;
+  for (std::size_t i = 0; i < s.joint_rows.size(); ++i) {
+    const JointRow& row = s.joint_rows[i];
+    if (!m_contact_active[i] || !m_contact_sliding[i]) continue;
+    const std::pair pair{row.body_a, row.body_b};
+    if (std::find(m_slipping_pairs.begin(), m_slipping_pairs.end(), pair) != m_slipping_pairs.end()) continue;
+    auto point_velocity = [&](Index b) {
+      return b < 0 ? Vec3::Zero()
+                   : Vec3(Vec3(bodies.v.col(b)) + Vec3(bodies.w.col(b)).cross(row.point - Vec3(bodies.x.col(b))));
+    };
+    const Vec3 n = row.j_a.head<3>();
+    Vec3 slip = point_velocity(row.body_a) - point_velocity(row.body_b);
+    slip -= n.dot(slip) * n;
+    if (slip.norm() > still) m_slipping_pairs.push_back(pair);
   }
 }
 
@@ -916,6 +1254,7 @@ SolveResult Newmark::solve(const StepModel& s, const SolveCoefficients& k, bool 
                      (s.springs.size() == 0 || key.k.beta == k.beta) &&
                      (!m_preconditioner.uses_multigrid() || m_preconditioner.multigrid_built());
   m_system.set(s, k, m_body_I);
+  m_last_k = k;
   if (!reuse) {
     m_preconditioner.build(s, m_body_I, k, jacobi);
     m_preconditioner_key = {k, jacobi};

@@ -14,6 +14,7 @@
 #include "preconditioner.hpp"
 #include "step_model.hpp"
 
+#include <algorithm>
 #include <vector>
 
 namespace sinew {
@@ -39,6 +40,15 @@ class Newmark {
   void extrapolate_velocity(const StepModel& s);                                  // 5
   /// Step 5's end: stiff damped binding springs' ends move together (see newmark.cpp).
   void settle_stiff_binding_springs(const StepModel& s);
+  // Contacts between rigid bodies (unilateral joint rows, see "Contacts" in newmark.cpp).
+  void predict_contacts(const StepModel& s, double dt);
+  bool revise_contacts(const StepModel& s, double dt);
+  void prepare_rows(const StepModel& s, double dt, bool contacts);
+  void collide_contacts(const StepModel& s, double dt);
+  void hold_contacts_at_step_end(const StepModel& s);
+  void advance_contact_gaps(const StepModel& s, double dt);
+  static double row_velocity(const JointRow& row, const Vectors3& v, const Vectors3& w);
+  static double contact_target(const JointRow& row, double dt) { return row.target - std::max(row.gap, 0.0) / dt; }
   void newton_iteration(const StepModel& s, double dt, StepStats& stats);  // after 1 (StepSettings)
 
   /// Step 1's initial guesses: v^n in m_y and, when one is to be tried, the other in m_guess (see
@@ -63,6 +73,12 @@ class Newmark {
   /// within the step; kSettlePasses Gauss-Seidel passes over the springs (and the joints).
   static constexpr double kSettleDecay = 4.0;
   static constexpr int kSettlePasses = 4;
+  /// Step 1 is solved again while its contacts' active set changes, at most this many times in all.
+  static constexpr int kContactPasses = 4;
+  /// Gauss-Seidel passes at the step's end when rigid bodies touch (contacts with friction, with the
+  /// springs' settling and the joints): a box sliding on four corners needs about this many to keep
+  /// friction's torque from tipping it.
+  static constexpr int kContactEndPasses = 16;
   static void record_solve(const SolveResult& result, int& iterations, StepStats& stats);
   void allocate(const StepModel& s);
   void save_state(const StepModel& s);
@@ -127,6 +143,26 @@ class Newmark {
   ChordForm m_form = ChordForm::derivative;  // the form of this step's answer
   Vectors3 m_u;                              // scratch: velocities with the bound rows' chords
   GeneralizedVector m_c, m_y, m_product, m_product0;
+  SolveCoefficients m_last_k;  // the last solve's coefficients (the operator m_c and m_y belong to)
+  // Contacts: the rows this step's solves hold (bilateral joint rows, then the active contacts with
+  // their step targets), each one's index in StepModel::joint_rows, and per joint row whether the
+  // contact is active, its step-1 multiplier (impulse over dt/2) and its end-of-step impulses.
+  bool m_has_contacts = false;
+  std::vector<JointRow> m_rows;
+  std::vector<Index> m_row_source;  // -1 - i for the tangent rows of a sticking contact i
+  std::vector<Index> m_tangent_of;  // per m_rows entry: a tangent row's normal row (in m_rows), else -1
+  std::vector<std::uint8_t> m_contact_active, m_contact_sliding;
+  struct ContactPair {
+    Index a, b;
+    double load, push;  // sum of the normal multipliers, and of their positive parts
+    Vec3 tangential;    // of the sticking contacts
+    double friction;
+    bool sticking;
+  };
+  std::vector<ContactPair> m_pairs;                       // revise_contacts' scratch
+  std::vector<std::pair<Index, Index>> m_slipping_pairs;  // body pairs slipping at the last step's end
+  VectorXd m_contact_impulse, m_lambda, m_end_normal, m_end_bound;
+  Vectors3 m_end_friction, m_predicted_v, m_predicted_w;
   GeneralizedVector m_guess;  // step 1's second initial guess M^-1 c (first step), later the extrapolation's increment
   GeneralizedVector m_last_half;  // the last step's v^{n+1/2} (particles and twists), for step 1's guess
   double m_last_dt = 0.0;         // that step's dt; 0 before the first step

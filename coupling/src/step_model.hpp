@@ -19,8 +19,8 @@ struct StepModel {
   std::span<const std::unique_ptr<Force>> forces;
   const StepSettings& settings;
   const Vec3& gravity;
-  const std::vector<JointRow>& joint_rows;
-  const VectorXd& effective_mass;  ///< per row, +inf for kinematic
+  std::vector<JointRow>& joint_rows;  ///< the step updates unilateral rows' gaps
+  const VectorXd& effective_mass;     ///< per row, +inf for kinematic
   std::span<const std::unique_ptr<CollisionSource>> collision_sources;
   const CollisionGeometry& geometry;
   double time;  ///< t^n

@@ -31,6 +31,7 @@ StepStats& StepStats::operator+=(const StepStats& o) {
   cg_iterations_step4 += o.cg_iterations_step4;
   newton_iterations += o.newton_iterations;
   rotation_iterations += o.rotation_iterations;
+  contact_passes += o.contact_passes;
   cg_residual = std::max(cg_residual, o.cg_residual);
   cg_converged = cg_converged && o.cg_converged;
   linear_solve = linear_solve || o.linear_solve;
@@ -358,6 +359,11 @@ void System::set_joint_rows(std::vector<JointRow> rows) {
     if (!(row.j_a.allFinite() && row.j_b.allFinite() && std::isfinite(row.target)))
       fail("joint row ", i, ": Jacobian or target is not finite");
     if (row.j_a.isZero(0.0) && row.j_b.isZero(0.0)) fail("joint row ", i, ": the Jacobian is zero");
+    if (!row.unilateral) continue;
+    if (!std::isfinite(row.gap)) fail("contact row ", i, ": gap ", row.gap, " is not finite");
+    if (!(std::isfinite(row.friction) && row.friction >= 0.0))
+      fail("contact row ", i, ": friction ", row.friction, " must be finite and >= 0");
+    if (!row.point.allFinite()) fail("contact row ", i, ": the contact point is not finite");
   }
   m_joint_rows = std::move(rows);
 }

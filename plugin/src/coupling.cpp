@@ -169,6 +169,7 @@ Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m
   SystemSettings system = settings.system;
   if (settings.use_world_gravity) system.gravity = to_eigen(world->getGravity());
   m_use_world_gravity = settings.use_world_gravity;
+  m_body_contacts = settings.body_contacts;
   m_system = System(system);
   // Bullet turns a body by at most pi/4 per step whatever its angular velocity (btTransformUtil::
   // integrateTransform's ANGULAR_MOTION_THRESHOLD); the step turns the rigid-body particles and the
@@ -665,6 +666,15 @@ StepStats Coupling::tick(double dt) {
   // The world and its bodies as they are now: an application may change them between ticks.
   if (m_use_world_gravity) m_system.set_gravity(to_eigen(m_world->getGravity()));
   follow_world();
+  if (m_body_contacts) {
+    // Bullet's contact manifolds at the bodies' present poses (Bullet finds them again after this
+    // callback, at the same poses): the last tick's are a tick old, and miss the contacts begun since.
+    bool coupled = false;
+    for (std::size_t b = 0; b < m_bodies.size() && !coupled; ++b)
+      coupled = m_bodies[b] && !m_system.rigid_bodies().kinematic[static_cast<Index>(b)];
+    if (coupled) m_world->performDiscreteCollisionDetection();
+    join_touching_bodies();
+  }
   // A set-up the application ran itself (System::finalize) merged masses into the particles: their
   // frames, where Bullet's bodies still are, say where the merged frames sit.
   if (m_system.set_ups() != m_set_ups_seen) adopt_set_up();
@@ -876,7 +886,96 @@ void Coupling::copy_joints_in(double dt) {
       m_joint_rows.push_back(row);
     }
   }
+  add_contact_rows(dt);
   m_system.set_joint_rows(m_joint_rows);
+}
+
+// A contact Bullet resolved after the step would move a coupled body off the step's update by
+// (impulse / m) dt, where its binding springs and joints did not expect it (a net of 0.1 kg rods on
+// stiff springs catching a 5 kg ball gained energy from it at every landing). The step holds them
+// instead (JointRow::unilateral), so both sides of a contact must be in the step or prescribed: a
+// dynamic body touching a coupled dynamic body joins the coupling, which a body with a locked rotation
+// axis (rigid-body particles have none) cannot; Bullet alone resolves its contacts.
+void Coupling::join_touching_bodies() {
+  if (!m_body_contacts) return;
+  btDispatcher* dispatcher = m_world->getDispatcher();
+  const RigidBodyParticles& bodies = m_system.rigid_bodies();
+  auto coupled_dynamic = [&](const btCollisionObject* o) {
+    const auto found = m_rigid_particles.find(o);
+    return found != m_rigid_particles.end() && !bodies.kinematic[found->second];
+  };
+  auto joinable = [&](const btCollisionObject* o) {
+    const btRigidBody* body = btRigidBody::upcast(o);
+    if (!body || m_rigid_particles.count(o) || body->isStaticOrKinematicObject() || !(body->getInvMass() > 0))
+      return false;
+    const btVector3 inverse = body->getInvInertiaDiagLocal();
+    return inverse.x() > 0 && inverse.y() > 0 && inverse.z() > 0;
+  };
+  for (int m = 0; m < dispatcher->getNumManifolds(); ++m) {
+    const btPersistentManifold* manifold = dispatcher->getManifoldByIndexInternal(m);
+    if (manifold->getNumContacts() == 0) continue;
+    const btCollisionObject* a = manifold->getBody0();
+    const btCollisionObject* b = manifold->getBody1();
+    if (!dispatcher->needsResponse(a, b)) continue;
+    if (coupled_dynamic(a) && joinable(b)) {
+      rigid_particle(const_cast<btRigidBody*>(btRigidBody::upcast(b)));
+    } else if (coupled_dynamic(b) && joinable(a)) {
+      rigid_particle(const_cast<btRigidBody*>(btRigidBody::upcast(a)));
+    }
+  }
+}
+
+// Each point of Bullet's contact manifolds on a coupled dynamic body, as a contact row: the manifold
+// (found at the bodies' present poses, see tick) holds a point on each body and the normal from body 1
+// to body 0; the gap is their separation along it. Levers are from the merged centres
+// (the particles' x), which the rows' twists are. The other body, when it is not coupled (static,
+// kinematic, or a body that could not join), moves with its velocity: its point's normal speed goes
+// into the target. An overlap is pushed out as Bullet's solver would (its contact ERP over the tick,
+// for overlaps shallower than the split-impulse threshold, which Bullet pushes out by position alone).
+void Coupling::add_contact_rows(double dt) {
+  if (!m_body_contacts) return;
+  btDispatcher* dispatcher = m_world->getDispatcher();
+  const btContactSolverInfo& solver = m_world->getSolverInfo();
+  const RigidBodyParticles& bodies = m_system.rigid_bodies();
+  auto index_of = [&](const btCollisionObject* o) -> Index {
+    const auto found = m_rigid_particles.find(o);
+    return found == m_rigid_particles.end() ? -1 : found->second;
+  };
+  for (int m = 0; m < dispatcher->getNumManifolds(); ++m) {
+    const btPersistentManifold* manifold = dispatcher->getManifoldByIndexInternal(m);
+    if (manifold->getNumContacts() == 0) continue;
+    const btCollisionObject* o[2] = {manifold->getBody0(), manifold->getBody1()};
+    Index index[2] = {index_of(o[0]), index_of(o[1])};
+    const bool dynamic[2] = {index[0] >= 0 && !bodies.kinematic[index[0]],
+                             index[1] >= 0 && !bodies.kinematic[index[1]]};
+    if (!dynamic[0] && !dynamic[1]) continue;
+    if (!dispatcher->needsResponse(o[0], o[1])) continue;
+    const int a = dynamic[0] ? 0 : 1, b = 1 - a;  // row.body_a: a coupled dynamic body
+    for (int k = 0; k < manifold->getNumContacts(); ++k) {
+      const btManifoldPoint& point = manifold->getContactPoint(k);
+      const Vec3 world[2] = {to_eigen(point.getPositionWorldOnA()), to_eigen(point.getPositionWorldOnB())};
+      const Vec3 at_a = world[a], at_b = world[b];
+      const Vec3 n = (a == 0 ? 1.0 : -1.0) * to_eigen(point.m_normalWorldOnB);  // from b towards a
+      JointRow row;
+      row.unilateral = true;
+      row.body_a = index[a];
+      row.j_a << n, (at_a - Vec3(bodies.x.col(index[a]))).cross(n);
+      row.gap = n.dot(at_a - at_b);
+      row.friction = static_cast<double>(point.m_combinedFriction);
+      row.point = 0.5 * (at_a + at_b);
+      if (index[b] >= 0) {
+        row.body_b = index[b];
+        row.j_b << -n, -(at_b - Vec3(bodies.x.col(index[b]))).cross(n);
+      } else if (const btRigidBody* other = btRigidBody::upcast(o[b]); other && !other->isStaticObject()) {
+        const btVector3 lever = to_bullet(at_b) - other->getCenterOfMassPosition();
+        row.target = n.dot(to_eigen(other->getVelocityInLocalPoint(lever)));
+      }
+      const bool split =
+          solver.m_splitImpulse && row.gap < static_cast<double>(solver.m_splitImpulsePenetrationThreshold);
+      if (row.gap < 0.0 && !split) row.target += -row.gap * static_cast<double>(solver.m_erp) / dt;
+      m_joint_rows.push_back(row);
+    }
+  }
 }
 
 // Bullet's solver adds the body's external impulse (total force and torque, which the Newmark step
@@ -995,7 +1094,10 @@ void Coupling::hold_contacts_at_tick_end(double dt) {
     if (!a || !b || !(in_coupled_island(a) || in_coupled_island(b))) continue;
     for (int k = 0; k < manifold->getNumContacts(); ++k) {
       btManifoldPoint& point = manifold->getContactPoint(k);
-      if (point.getAppliedImpulse() > btScalar(0)) m_end_contacts.push_back({&point, a, b, 0.0, Vec3::Zero()});
+      // With body_contacts the step held them and Bullet applied (about) nothing: every point counts
+      // (a point still apart may close, so holding it costs nothing).
+      if (m_body_contacts || point.getAppliedImpulse() > btScalar(0))
+        m_end_contacts.push_back({&point, a, b, 0.0, Vec3::Zero()});
     }
   }
   const int passes = m_end_contacts.empty() ? 1 : 8;

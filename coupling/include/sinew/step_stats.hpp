@@ -31,6 +31,9 @@ struct StepStats {
   /// its points' arms were set from (StepSettings::rotation_iterations); their CG iterations count
   /// in step 1's.
   int rotation_iterations = 0;
+  /// Step 1 solves repeated because the contacts between rigid bodies that hold changed (a held one
+  /// pulled, a free one was crossed; JointRow::unilateral); their CG iterations count in step 1's.
+  int contact_passes = 0;
   double cg_residual = 0;  ///< largest final residual [m/s] over all solves
   /// Every solve reached the tolerance, and every body's turn agreed with its arms to it.
   bool cg_converged = true;

@@ -180,12 +180,28 @@ void validate(const StepSettings& settings);
 /// Both solves of the step keep the dynamic bodies' twists on these rows (projected CG, like the
 /// collision normals), so that the bodies move in the step as the joints will let them.
 /// Rows on kinematic bodies use their prescribed twists.
+///
+/// A unilateral row is a contact between two bodies (a rigid solver's contact point): J = (n, r_a x n)
+/// on body_a and (-n, -r_b x n) on body_b, n the unit normal from b towards a at `point`, and the row
+/// holds J . t >= target - max(gap, 0) / dt, so a contact apart by `gap` may close over the step and
+/// no further. The step chooses which contacts hold (those its bodies' applied forces drive closed
+/// within a step, and those its answer would cross), makes each one it closes an inelastic collision,
+/// and updates `gap` by the step's relative motion, so substeps within one call see it close. A held
+/// contact with `friction` sticks in the solves (no tangential motion at `point`) while its multipliers
+/// stay in Coulomb's cone, and slides otherwise. At the end of each step the held contacts also keep
+/// v^{n+1} from approaching, by pushes only, with friction bounded by the impulse the contact carried
+/// over the step. Contacts whose targets disagree (several points of one touching pair) are held at
+/// the least-norm twists that meet them all.
 struct JointRow {
   Index body_a = -1;
   Vec6 j_a = Vec6::Zero();
   Index body_b = -1;
   Vec6 j_b = Vec6::Zero();
   double target = 0.0;  ///< [m/s]
+  bool unilateral = false;
+  double gap = 0.0;           ///< [m] unilateral rows: the contact's separation along n (< 0 overlapping)
+  double friction = 0.0;      ///< unilateral rows: Coulomb's coefficient at the contact
+  Vec3 point = Vec3::Zero();  ///< [m] unilateral rows: the contact point, for friction's levers
 };
 
 class System {
