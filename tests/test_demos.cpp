@@ -68,12 +68,14 @@ TEST(NetDemo, HoldsTheBall) {
   run(*scene, 1);
   const double start = scene->total_energy();
   const btRigidBody* ball = scene->bullet().bodies().back();
-  double lowest = kInfinity, stretch = 0.0;
+  double lowest = kInfinity, stretch = 0.0, gain = -kInfinity;
   for (int f = 1; f < 300; ++f) {
     scene->advance(1.0 / 60, scene->default_substeps());
     lowest = std::min(lowest, position(ball).y());
     stretch = std::max(stretch, scene->system().binding_springs().max_stretch(scene->system().particles().x));
+    gain = std::max(gain, scene->total_energy() - start);
   }
+  EXPECT_LE(gain, 1e-6 * start) << "passive: never above its start (the ball's contacts are in the step)";
   EXPECT_GT(lowest, 0.3);              // the net (at y = 1) sags under the ball; it does not let it through
   EXPECT_LT(position(ball).y(), 1.0);  // after 5 s the ball lies in the net, below its rim
   EXPECT_LT(stretch, 0.05);            // the point joints hold
@@ -83,7 +85,8 @@ TEST(NetDemo, HoldsTheBall) {
 // The ball's contacts with the rods are solved in sinew's step with the rods' stiff point joints
 // (CouplingSettings::body_contacts). Resolved by Bullet after the step, they fed energy in at every
 // landing: the scene ran at 8 ticks per frame and still gained. Passive, its energy never rises above
-// its start, at 4, 2 or 1 ticks per frame, and the net holds the ball.
+// its start at fewer ticks too (4 in NetDemo.HoldsTheBall; 2 and 1 here, through the landing and the
+// first bounces), and the net holds the ball.
 class NetTicks : public ::testing::TestWithParam<int> {};
 
 TEST_P(NetTicks, NeverGainsEnergyAndHoldsTheBall) {
@@ -92,17 +95,17 @@ TEST_P(NetTicks, NeverGainsEnergyAndHoldsTheBall) {
   const double start = scene->total_energy();
   const btRigidBody* ball = scene->bullet().bodies().back();
   double gain = -kInfinity, lowest = kInfinity;
-  for (int f = 0; f < 240; ++f) {
+  for (int f = 0; f < 150; ++f) {
     scene->advance(1.0 / 60, ticks);
     gain = std::max(gain, scene->total_energy() - start);
     lowest = std::min(lowest, position(ball).y());
   }
   EXPECT_LE(gain, 1e-6 * start) << ticks << " ticks per frame";
   EXPECT_GT(lowest, 0.3) << "the net (at y = 1) sags under the ball; it does not let it through";
-  EXPECT_LT(position(ball).y(), 1.0) << "the ball lies in the net";
+  EXPECT_LT(position(ball).y(), 1.0) << "the ball is in the net";
 }
 
-INSTANTIATE_TEST_SUITE_P(PerFrame, NetTicks, ::testing::Values(4, 2, 1));
+INSTANTIATE_TEST_SUITE_P(PerFrame, NetTicks, ::testing::Values(2, 1));
 
 TEST(HelloDemo, SphereLandsAndClothStaysAboveTheGround) {
   auto scene = make_bullet_scene("hello");
