@@ -191,7 +191,6 @@ void Constraints::project_joint_groups(GeneralizedVector& u, bool impose_targets
 void Constraints::agree_contact_targets(JointGroup& group, const std::vector<JointRow>& rows,
                                         const std::vector<Index>* tangent_of) {
   const Index m = group.J.rows();
-  group.svd.compute(group.J, Eigen::ComputeThinU | Eigen::ComputeThinV);
   const VectorXd& sigma = group.svd.singularValues();
   Index rank = 0;
   while (rank < sigma.size() && sigma[rank] > 1e-3 * sigma[0]) ++rank;
@@ -312,10 +311,11 @@ void Constraints::prepare_joints(const std::vector<JointRow>& rows, const RigidB
         }
       }
     }
+    // The SVD keeps its work space between steps (Eigen reallocates only when the shape changes). It
+    // depends on J alone: agree_contact_targets reads it and changes only the targets.
+    group.svd.compute(group.J, Eigen::ComputeThinU | Eigen::ComputeThinV);
     if (std::any_of(group.rows.begin(), group.rows.end(), [&](Index r) { return rows[r].unilateral; }))
       agree_contact_targets(group, rows, tangent_of);
-    // The SVD keeps its work space between steps (Eigen reallocates only when the shape changes).
-    group.svd.compute(group.J, Eigen::ComputeThinU | Eigen::ComputeThinV);
     const VectorXd& sigma = group.svd.singularValues();
     Index rank = 0;
     while (rank < sigma.size() && sigma[rank] > 1e-10 * sigma[0]) ++rank;

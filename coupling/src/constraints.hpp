@@ -78,7 +78,8 @@ class Constraints {
     VectorXd t, coefficients;
     Eigen::JacobiSVD<Eigen::MatrixXd> svd;
   };
-  /// A group with contact rows: its rows' targets made to agree (see constraints.cpp).
+  /// A group with contact rows: its rows' targets made to agree, from group.svd (of group.J, computed
+  /// first; see constraints.cpp).
   void agree_contact_targets(JointGroup& group, const std::vector<JointRow>& rows,
                              const std::vector<Index>* tangent_of);
   std::vector<Index> m_local_row;  // agree_contact_targets' scratch: each row's place in its group
