@@ -525,12 +525,13 @@ TEST(BulletCoupling, ARestingBodyReadsTheVelocityItMovesWith) {
 }
 
 // The README's hello scene (demos/hello.cpp): a cloth tied at its centre to the top of a 1 kg sphere by
-// a 1e4 N/m binding spring, at rest on the ground after 3 s. The collision thickness holds the tied node
-// 1 cm above the spring's end on the sphere, so the spring carries k * 1 cm ~ 100 N. Between ticks the
-// node reads the velocity it moves with and the spring reads that force; the sphere reads no sinking;
-// the spring's end on the sphere sits on the sphere's final frame, moving with its final twist. Before,
-// the node read |v| = 13 m/s while it moved at 0.15 m/s (step 4 pulled it into the sphere, and only the
-// next step's projection took that out), the spring read 2 N, and the sphere read g dt / 2 of sinking.
+// a 1e4 N/m binding spring, at rest on the ground after 3 s. The tied node does not collide with the
+// sphere it is tied to (Coupling::find_tied_particles), so it sits on the spring's end, which carries
+// what the cloth around it pulls. Between ticks the node reads the velocity it moves with and the spring
+// reads k times its stretch; the sphere reads no sinking; the spring's end on the sphere sits on the
+// sphere's final frame, moving with its final twist. Before, the node read |v| = 13 m/s while it moved
+// at 0.15 m/s (step 4 pulled it into the sphere, and only the next step's projection took that out),
+// the spring read 2 N, and the sphere read g dt / 2 of sinking.
 TEST(BulletCoupling, HelloSceneReadsTheStateItIsIn) {
   BulletWorld bw(btVector3(0, -9.81, 0));
   bw.add_body(bw.keep(std::make_unique<btStaticPlaneShape>(btVector3(0, 1, 0), 0)), 0.0,
@@ -563,7 +564,8 @@ TEST(BulletCoupling, HelloSceneReadsTheStateItIsIn) {
 
     const Vec3 stretch = s.particles().x.col(node) - s.particles().x.col(end);
     const Vec3 f = s.binding_spring_force(spring);
-    worst_force = std::max(worst_force, (f + k * stretch).norm() / (k * stretch.norm()));
+    const double weight = 0.2 * 9.81;  // the cloth's: what the spring carries at most, at rest
+    worst_force = std::max(worst_force, (f + k * stretch).norm() / std::max(k * stretch.norm(), weight));
     worst_sinking = std::max(worst_sinking, std::abs(double(sphere->getLinearVelocity().y())));
     const btTransform& frame = sphere->getCenterOfMassTransform();
     const Vec3 r = bullet::to_eigen(frame.getBasis() * bullet::to_bullet(local));
@@ -571,14 +573,72 @@ TEST(BulletCoupling, HelloSceneReadsTheStateItIsIn) {
         bullet::to_eigen(sphere->getLinearVelocity()) + bullet::to_eigen(sphere->getAngularVelocity()).cross(r);
     worst_end = std::max({worst_end, (Vec3(s.particles().x.col(end)) - bullet::to_eigen(frame.getOrigin()) - r).norm(),
                           (Vec3(s.particles().v.col(end)) - v_end).norm()});
-    EXPECT_GT(k * stretch.norm(), 50.0) << "the thickness holds the node off the spring's end";
+    EXPECT_LT(stretch.norm(), 1e-3) << "m: the node sits on the spring's end";
   }
   EXPECT_LT(worst_node, 0.01) << "m/s between the node's reading and its motion";
-  EXPECT_LT(worst_force, 0.02) << "of k times the stretch";
+  EXPECT_LT(worst_force, 0.02) << "of k times the stretch (or of the cloth's weight)";
   EXPECT_LT(worst_sinking, 1e-9) << "m/s";
   EXPECT_LT(worst_end, 1e-12);
   EXPECT_NEAR(sphere->getCenterOfMassPosition().y(), 0.3, 1e-9);
 }
+
+// A cloth tied by its centre to a point on a body, everything falling freely: no force does work, so
+// the visible energy (kinetic, gravity, elastic and the binding spring's) keeps its start. The tie's end
+// sits on the body's surface or inside it, where the collision thickness would hold the node out: with
+// the node colliding with its own body the projection did work on the stretched spring at every step,
+// and the README's hello scene (tie on a sphere's top) gained 2.2 J in 20 frames at one step per tick,
+// 0.04 J at five. The family: sphere and box, tie on the surface at 1 and 4 Bullet ticks per frame, and
+// 5 cm inside the sphere at 4, the scheme sinew chooses. Bound: 1e-3 of the kinetic energy the fall
+// gives (14 J). Not held yet, where the cloth around the node wraps onto the falling body: a tie 5 cm
+// inside the sphere at one 1/60 s tick (the energy swings by 3 J) and 5 cm inside the box at 4 ticks
+// (+0.04 J), contact of cloth with fast bodies that the contact work has to take up.
+struct TiedCase {
+  bool box;
+  double depth;  // of the tie below the top surface [m]
+  int ticks;
+};
+class TiedClothInFreeFall : public ::testing::TestWithParam<TiedCase> {};
+
+TEST_P(TiedClothInFreeFall, GainsNoEnergy) {
+  const TiedCase p = GetParam();
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  std::unique_ptr<btCollisionShape> shape;
+  if (p.box) shape = std::make_unique<btBoxShape>(btVector3(0.3, 0.3, 0.3));
+  else shape = std::make_unique<btSphereShape>(0.3);
+  btVector3 inertia;
+  shape->calculateLocalInertia(1, inertia);
+  btRigidBody* body = bw.add_body(shape.get(), 1.0, scenes::at(btVector3(0, 2, 0)), inertia);
+  body->setActivationState(DISABLE_DEACTIVATION);
+  bullet::Coupling coupling(&bw.world());
+  System& s = coupling.system();
+  ClothGridSettings grid;
+  grid.nx = grid.ny = 15;
+  grid.width = grid.height = 1.2;
+  grid.mass = 0.2;
+  grid.origin = {-0.6, 2.31, -0.6};
+  grid.down = {0, 0, 1};
+  const ClothGrid cloth = add_cloth_grid(s, grid);
+  coupling.attach(cloth.node(7, 7), body, Vec3(0, 0.3 - p.depth, 0), 1e4);
+  const auto energy = [&] {  // as BulletScene::total_energy: the body's is Bullet's
+    double e = s.potential_energy() + bw.rigid_energy();
+    for (Index i = 0; i < s.particles().size(); ++i)
+      if (s.particles().kind[i] == ParticleKind::free)
+        e += 0.5 * s.particles().mass[i] * s.particles().v.col(i).squaredNorm();
+    return e;
+  };
+  double start = 0.0, worst = 0.0;
+  for (int frame = 1; frame <= 30; ++frame) {  // 0.5 s: the body falls 1.2 m and meets nothing
+    bw.world().stepSimulation(btScalar(1.0 / 60), p.ticks, btScalar(1.0 / (60.0 * p.ticks)));
+    if (frame == 1) start = energy();  // after the first tick has set the system up
+    worst = std::max(worst, energy() - start);
+  }
+  EXPECT_LT(worst, 0.014) << "J above the start (" << start << " J)";
+  EXPECT_GT(body->getCenterOfMassPosition().y(), 0.5) << "still falling freely";
+}
+
+INSTANTIATE_TEST_SUITE_P(BulletCoupling, TiedClothInFreeFall,
+                         ::testing::Values(TiedCase{false, 0.0, 1}, TiedCase{false, 0.0, 4}, TiedCase{false, 0.05, 4},
+                                           TiedCase{true, 0.0, 1}, TiedCase{true, 0.0, 4}));
 
 // The mass of points hard-bound to a body is the body's (section 2, m = W^T m_bar). A 10 x 10 cloth
 // moving at 1 m/s, without gravity, is bound by a corner to a box at rest: the corner's momentum goes

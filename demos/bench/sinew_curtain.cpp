@@ -94,6 +94,8 @@ class SinewCurtain final : public SinewCurtainRun {
     m_world->stepSimulation(btScalar(frame_dt), steps, btScalar(frame_dt / steps));
   }
 
+  System& deformable_system() override { return m_coupling->system(); }
+
   Vectors3 nodes() const override {
     const Vectors3& x = m_coupling->system().particles().x;
     Vectors3 out(3, static_cast<Index>(m_cloth.nodes.size()));

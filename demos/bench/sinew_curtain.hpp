@@ -9,6 +9,7 @@
 #include "curtain_bench.hpp"
 
 #include "sinew/step_stats.hpp"
+#include "sinew/system.hpp"
 
 #include <memory>
 
@@ -37,6 +38,8 @@ class SinewCurtainRun : public CurtainRun {
  public:
   /// Per-phase timings, substeps and CG iterations summed over every tick since construction.
   virtual const StepStats& total_stats() const = 0;
+  /// The coupling's deformable system (sinew-schemes sets its step settings between runs).
+  virtual System& deformable_system() = 0;
 };
 
 std::unique_ptr<SinewCurtainRun> make_sinew_curtain(const CurtainSpec& spec, const SinewSettings& settings = {});

@@ -6,6 +6,7 @@
 #include "curtain_bench.hpp"
 #include "fnv_hash.hpp"
 #include "scene.hpp"
+#include "sinew_curtain.hpp"
 
 #include <memory>
 
@@ -28,6 +29,14 @@ class BenchScene final : public Scene {
     m.hard_binding_drift = m_run->attachment().bound_node;
     m.energy = m_run->energy();
     return m;
+  }
+  const StepStats* total_stats() const override {
+    auto* sinew_run = dynamic_cast<const bench::SinewCurtainRun*>(m_run.get());
+    return sinew_run ? &sinew_run->total_stats() : nullptr;
+  }
+  System* deformable_system() override {
+    auto* sinew_run = dynamic_cast<bench::SinewCurtainRun*>(m_run.get());
+    return sinew_run ? &sinew_run->deformable_system() : nullptr;
   }
   /// FNV-1a over the node positions, the energy and the momentum along the rod (sinew-hashes'
   /// record of the benchmark's settings).

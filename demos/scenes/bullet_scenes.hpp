@@ -82,6 +82,7 @@ class BulletScene : public Scene {
   bullet::Coupling& coupling() { return *m_coupling; }
   System& system() { return m_coupling->system(); }
   System* deformable_system() override { return &m_coupling->system(); }
+  const StepStats* total_stats() const override { return &m_coupling->total_stats(); }
   double time() const { return m_time; }
 
   /// Largest distance of a hard-bound point from where its Bullet body's frame puts it [m].

@@ -174,6 +174,12 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
       continue;
     // CF_NO_CONTACT_RESPONSE: Bullet reports the object's contacts and resolves none; neither does sinew.
     if (!objects[o]->hasContactResponse()) continue;
+    if (!m_tied.empty() && m_rigid_particles) {
+      const auto found = m_rigid_particles->find(objects[o]);
+      if (found != m_rigid_particles->end() &&
+          std::binary_search(m_tied.begin(), m_tied.end(), std::pair<Index, Index>(i, found->second)))
+        continue;
+    }
     if (const btBroadphaseProxy* proxy = objects[o]->getBroadphaseHandle())
       if (!c.geometry->collides(i, static_cast<std::uint32_t>(proxy->m_collisionFilterGroup),
                                 static_cast<std::uint32_t>(proxy->m_collisionFilterMask)))

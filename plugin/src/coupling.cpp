@@ -649,6 +649,28 @@ Index Coupling::attach(Index point, btRigidBody* body, const Vec3& local, double
   return m_system.add_binding_spring({point, end, stiffness, damping_ratio});
 }
 
+void Coupling::find_tied_particles() {
+  const HardBindings& hard = m_system.hard_bindings();
+  const BindingSprings& springs = m_system.binding_springs();
+  m_tied.clear();
+  if (springs.size() > 0) {
+    m_point_body.assign(static_cast<std::size_t>(m_system.particles().size()), -1);
+    for (Index k = 0; k < hard.rigid_count(); ++k)
+      m_point_body[static_cast<std::size_t>(hard.rigid_particle(k))] = hard.rigid_body(k);
+    for (Index s = 0; s < springs.size(); ++s) {
+      if (springs.removed(s) || !springs.active(s)) continue;
+      const Index a = springs.a(s), b = springs.b(s);
+      const Index body_a = m_point_body[static_cast<std::size_t>(a)];
+      const Index body_b = m_point_body[static_cast<std::size_t>(b)];
+      if (body_b >= 0 && body_a < 0) m_tied.emplace_back(a, body_b);
+      if (body_a >= 0 && body_b < 0) m_tied.emplace_back(b, body_a);
+    }
+    std::sort(m_tied.begin(), m_tied.end());
+    m_tied.erase(std::unique(m_tied.begin(), m_tied.end()), m_tied.end());
+  }
+  m_collisions->set_tied(m_tied);
+}
+
 // Section 5, in order:
 //   1. copy each Bullet body's state into its rigid-body particle, with the total force and torque
 //      Bullet has gathered on it (gravity, the application's forces) and its joints' equality rows;
@@ -683,6 +705,7 @@ StepStats Coupling::tick(double dt) {
   if (m_system.needs_set_up()) set_up();
   copy_joints_in(dt);
   if (m_system.asleep()) wake_on_approach(dt);
+  if (m_collisions) find_tied_particles();
   // A tick that throws leaves the state of its start: the deformables and rigid-body particles as
   // they were, no collision impulse handed over, and Bullet's gathered forces cleared (the exception
   // leaves stepSimulation before Bullet's own clearForces, and the next call would add gravity again).
@@ -710,6 +733,7 @@ StepStats Coupling::tick(double dt) {
     m_world->clearForces();
     throw;
   }
+  m_total += m_last;
   if (m_collisions) {
     if (m_last.asleep) m_collisions->forget_contacts();  // the end of the tick holds none of them
     m_collisions->apply_pending_impulses();

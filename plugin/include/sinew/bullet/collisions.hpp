@@ -9,6 +9,7 @@
 #include <functional>
 #include <string_view>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 namespace sinew::bullet {
@@ -82,6 +83,10 @@ class BulletCollisions final : public CollisionSource {
   /// Deepest penetration below the thickness seen at the last call, before projection [m].
   double deepest_penetration() const { return m_deepest; }
   int contacts() const { return m_contacts; }
+  /// Pairs (particle, rigid-body particle) that do not collide: a particle tied by a binding spring to
+  /// a point on a body (Coupling::attach) passes through that body, as Bullet's constraints may turn
+  /// off collisions between the bodies they link. Sorted; the coupling sets them every tick.
+  void set_tied(const std::vector<std::pair<Index, Index>>& tied) { m_tied = tied; }
 
  private:
   /// The object nearest to x within reach whose filter admits particle i: index, signed distance and
@@ -107,6 +112,7 @@ class BulletCollisions final : public CollisionSource {
   void push_pending(btRigidBody* body, const btVector3& arm, const Vec3& j);
   double m_deepest = 0.0;
   int m_contacts = 0;
+  std::vector<std::pair<Index, Index>> m_tied;
 };
 
 }  // namespace sinew::bullet
