@@ -1,6 +1,7 @@
 // Whole-system behaviour: conservation, determinism, T-junctions, convergence, allocation and errors.
 #include "cloth.hpp"
 #include "sinew/forces/corotated_tets.hpp"
+#include "sinew/forces/dihedral_bending.hpp"
 #include "sinew/forces/edge_springs.hpp"
 #include "sinew/parallel.hpp"
 #include "sinew/system.hpp"
@@ -726,6 +727,53 @@ TEST(Sleeping, SettingsAreValidatedByName) {
   s.step_settings().sleep_speed = 1e-3;
   s.step_settings().sleep_time = 0.0;
   EXPECT_NE(error_of([&] { s.advance(0.01); }).find("sleep_time"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace sinew
+
+namespace sinew {
+namespace {
+
+// StepSettings::automatic makes implicit only the forces its substep needs. A 16 x 16 cloth pinned by
+// two corners, with springs stiff enough that explicit elasticity needs tens of substeps per frame:
+// with light bending (stable at the chosen substep) bending stays explicit; 1e5 times stiffer, it joins
+// the solves. Seen inside the step: a collision source runs in step 3 with the frame's scheme in place.
+TEST(AutomaticScheme, MakesImplicitOnlyTheForcesTheSubstepNeeds) {
+  for (const double bending : {1e-5, 1.0}) {
+    System system;
+    scenes::ClothGridSettings c;
+    c.nx = c.ny = 16;
+    c.width = c.height = 0.5;
+    c.mass = 0.1;
+    c.origin = Vec3(-0.25, 1.0, 0.0);
+    c.stretch_stiffness = 3000.0;
+    c.stretch_damping = 0.05;
+    c.bending_stiffness = bending;
+    const scenes::ClothGrid cloth = scenes::add_cloth_grid(system, c);
+    const std::array<double, 1> one{1.0};
+    for (const Index node : {cloth.node(0, 0), cloth.node(15, 0)}) {
+      const Index pin = system.add_kinematic_particle(system.particles().x.col(node));
+      system.bind_linear(node, std::array<Index, 1>{pin}, one);
+    }
+    const Force* bending_force = nullptr;
+    for (const auto& f : system.forces())
+      if (dynamic_cast<const DihedralBending*>(f.get())) bending_force = f.get();
+    ASSERT_NE(bending_force, nullptr);
+    int implicit_steps = 0, bending_implicit_steps = 0;
+    system.add_collision_source(make_collision_source("observer", [&](CollisionContext&) {
+      if (!system.step_settings().implicit_elasticity) return;
+      ++implicit_steps;
+      if (bending_force->has_definite_differentials()) ++bending_implicit_steps;
+    }));
+    const int explicit_substeps = static_cast<int>(std::ceil((1.0 / 60) / (0.9 * system.stable_dt())));
+    ASSERT_GT(explicit_substeps, 10) << "bending " << bending;
+    for (int frame = 0; frame < 30; ++frame) system.advance(1.0 / 60);
+    ASSERT_GT(implicit_steps, 0) << "bending " << bending << ": the choice stayed explicit";
+    if (bending < 1e-3) EXPECT_EQ(bending_implicit_steps, 0) << "light bending joined the solves";
+    else EXPECT_EQ(bending_implicit_steps, implicit_steps) << "stiff bending stayed explicit";
+    EXPECT_FALSE(bending_force->has_definite_differentials()) << "the offer is taken back after each frame";
+  }
 }
 
 }  // namespace
