@@ -26,10 +26,8 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <cstring>
 #include <filesystem>
 #include <limits>
-#include <optional>
 #include <sstream>
 #include <string>
 #include <thread>
