@@ -524,6 +524,18 @@ TEST(BulletCoupling, ARestingBodyReadsTheVelocityItMovesWith) {
   }
 }
 
+// The cloth of the README's hello scene (demos/hello.cpp): 1.2 m, 15 x 15 nodes, 0.2 kg, flat 1 cm
+// above the top of a 0.3 m sphere centred at (0, 2, 0).
+ClothGrid add_hello_cloth(System& s) {
+  ClothGridSettings grid;
+  grid.nx = grid.ny = 15;
+  grid.width = grid.height = 1.2;
+  grid.mass = 0.2;
+  grid.origin = {-0.6, 2.31, -0.6};
+  grid.down = {0, 0, 1};
+  return add_cloth_grid(s, grid);
+}
+
 // The README's hello scene (demos/hello.cpp): a cloth tied at its centre to the top of a 1 kg sphere by
 // a 1e4 N/m binding spring, at rest on the ground after 3 s. The tied node does not collide with the
 // sphere it is tied to (Coupling::find_tied_particles), so it sits on the spring's end, which carries
@@ -542,13 +554,7 @@ TEST(BulletCoupling, HelloSceneReadsTheStateItIsIn) {
   btRigidBody* sphere = bw.add_body(&ball, 1.0, scenes::at(btVector3(0, 2, 0)), inertia);
   bullet::Coupling coupling(&bw.world());
   System& s = coupling.system();
-  ClothGridSettings grid;
-  grid.nx = grid.ny = 15;
-  grid.width = grid.height = 1.2;
-  grid.mass = 0.2;
-  grid.origin = {-0.6, 2.31, -0.6};
-  grid.down = {0, 0, 1};
-  const ClothGrid cloth = add_cloth_grid(s, grid);
+  const ClothGrid cloth = add_hello_cloth(s);
   const double k = 1e4;
   const Vec3 local(0, 0.3, 0);
   const Index spring = coupling.attach(cloth.node(7, 7), sphere, local, k);
@@ -611,13 +617,7 @@ TEST_P(TiedClothInFreeFall, GainsNoEnergy) {
   body->setActivationState(DISABLE_DEACTIVATION);
   bullet::Coupling coupling(&bw.world());
   System& s = coupling.system();
-  ClothGridSettings grid;
-  grid.nx = grid.ny = 15;
-  grid.width = grid.height = 1.2;
-  grid.mass = 0.2;
-  grid.origin = {-0.6, 2.31, -0.6};
-  grid.down = {0, 0, 1};
-  const ClothGrid cloth = add_cloth_grid(s, grid);
+  const ClothGrid cloth = add_hello_cloth(s);
   coupling.attach(cloth.node(7, 7), body, Vec3(0, 0.3 - p.depth, 0), 1e4);
   const auto energy = [&] {  // as BulletScene::total_energy: the body's is Bullet's
     double e = s.potential_energy() + bw.rigid_energy();
