@@ -729,7 +729,8 @@ StepStats System::advance_awake(double frame_dt) {
   // A force kept explicit limits the substep to its own stable step but adds nothing to the solves;
   // made implicit, its products join every CG iteration (a hinge's 12 x 12 block against a spring's
   // 6 x 6) and stiffen the system the CG solves. Up to twice the substeps, explicit is the cheaper
-  // (and, at the shorter step, the more accurate): the substep is lengthened only as far as that.
+  // (and, at the shorter step, the more accurate): the count is raised to the largest own count of
+  // the forces that at most double it, and those stay explicit.
   if (implicit > 0) {
     const int fewest = implicit;
     for (std::size_t k = 0; k < m_forces.size(); ++k) {

@@ -312,10 +312,10 @@ class System {
   /// cfl * stable_dt(). On (the default), the scheme of the frame is chosen from the scene:
   ///  - explicit elasticity (as set) while it needs at most kCheapExplicitSubsteps substeps;
   ///  - else implicit elasticity, in substeps bounded by the forces that cannot join the solves and by
-  ///    the turn of the elements (StepSettings::turn_work_per_implicit_step), lengthened at most to
-  ///    twice that count by the forces that could; a force joins the solves (offers its definite
-  ///    differential, bending included) only when its own stable step is shorter than the substep;
-  ///    when its cost is lower: each scheme's
+  ///    the turn of the elements (StepSettings::turn_work_per_implicit_step); a force that could join
+  ///    them stays explicit where that at most doubles the substep count (the count is raised to its
+  ///    own), and joins (offers its definite differential, bending included) only when its own stable
+  ///    step is shorter than the substep taken; when its cost is lower: each scheme's
   ///    cost per substep is one force evaluation plus its CG iterations, counted from the last frames
   ///    that used it (deterministic: counts, not clocks); its solves stop at kImplicitRelativeTolerance
   ///    of the scene's speed (scene_speed()) unless cg_tolerance is looser;
