@@ -728,14 +728,18 @@ StepStats System::advance_awake(double frame_dt) {
   int implicit = std::max(substeps_for(frame_dt, implicit_limit), turn_substeps);
   // A force kept explicit limits the substep to its own stable step but adds nothing to the solves;
   // made implicit, its products join every CG iteration (a hinge's 12 x 12 block against a spring's
-  // 6 x 6) and stiffen the system the CG solves. Up to twice the substeps, explicit is the cheaper
-  // (and, at the shorter step, the more accurate): the count is raised to the largest own count of
-  // the forces that at most double it, and those stay explicit.
+  // 6 x 6) and stiffen the system the CG solves. For a force that offers a definite differential
+  // only when asked (dihedral bending's Gauss-Newton one), up to kKeepExplicitFactor times the
+  // substeps explicit is the cheaper (and, at the shorter step, the more accurate): the count is raised
+  // to the largest own count within that factor, and those forces stay explicit. Forces whose
+  // definite differential is their own (edge springs) join the solves whenever they limit the step.
   if (implicit > 0) {
     const int fewest = implicit;
     for (std::size_t k = 0; k < m_forces.size(); ++k) {
       const int own = substeps_for(frame_dt, m_force_stable_dt[k]);
-      if (m_forces[k]->can_offer_definite_differentials() && own > implicit && own <= 2 * fewest)
+      const Force& f = *m_forces[k];
+      if (f.can_offer_definite_differentials() && !f.has_definite_differentials() && own > implicit &&
+          own <= kKeepExplicitFactor * fewest)
         implicit = own;  // every force whose own count is at most this stays explicit
     }
   }

@@ -15,7 +15,7 @@
 // what the reference gains). The best hand-chosen setting is the fastest that held with an end error
 // within 10% (or 0.1 mm) of auto's; the goal is auto at most 10% slower than it.
 //
-//   sinew-schemes [--frames 120] [--runs 3] [--scenes hello,plates,...] [--out DIR]
+//   sinew-schemes [--frames 120] [--runs 3] [--scenes hello,plates,...] [--out DIR] [--auto-only]
 #include "machine.hpp"
 #include "scene.hpp"
 
@@ -44,6 +44,7 @@ struct Options {
   std::vector<std::string> scenes{"hello",        "plates",        "net",          "curtain",
                                   "spinning-box", "bench-curtain", "hanging-cloth"};
   std::string out = "bench-results";
+  bool auto_only = false;  // the automatic scheme alone (no sweep, no comparison)
 };
 
 /// One way of setting the step. `automatic` runs the defaults with the choice on; the others run as named.
@@ -201,12 +202,14 @@ Options parse(int argc, char** argv) {
     if (arg == "--frames") o.frames = std::stoi(value());
     else if (arg == "--runs") o.runs = std::stoi(value());
     else if (arg == "--out") o.out = value();
+    else if (arg == "--auto-only") o.auto_only = true;
     else if (arg == "--scenes") {
       o.scenes.clear();
       std::stringstream list(value());
       for (std::string name; std::getline(list, name, ',');) o.scenes.push_back(name);
     } else {
-      std::fprintf(stderr, "usage: sinew-schemes [--frames 120] [--runs 3] [--scenes a,b,...] [--out DIR]\n");
+      std::fprintf(stderr,
+                   "usage: sinew-schemes [--frames 120] [--runs 3] [--scenes a,b,...] [--out DIR] [--auto-only]\n");
       std::exit(2);
     }
   }
@@ -241,7 +244,8 @@ int main(int argc, char** argv) try {
     std::printf("|---|---|---|---|---|---|---|\n");
     std::vector<Row> rows;
     rows.push_back(measure(name, Scheme{.name = "auto", .automatic = true}, o, reference));
-    for (const Scheme& s : sweep()) rows.push_back(measure(name, s, o, reference));
+    if (!o.auto_only)
+      for (const Scheme& s : sweep()) rows.push_back(measure(name, s, o, reference));
     for (const Row& r : rows) {
       print_row(stdout, r);
       std::fprintf(csv, "%s,\"%s\",%.4f,%.2f,%.4e,%.4e,%.4e,%d\n", name.c_str(), label(r.scheme).c_str(), r.ms,
