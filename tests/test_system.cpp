@@ -9,6 +9,7 @@
 #include "test_util.hpp"
 
 #include <gtest/gtest.h>
+#include <cfloat>
 
 #include <array>
 #include <cctype>
@@ -385,6 +386,41 @@ TEST(System, ABindingSpringMovedToNewEndsPullsThem) {
   EXPECT_THROW(s.set_binding_spring_ends(7, grabbed, cursor), Error);
 }
 
+// A chain of particles joined by stiff binding springs (k = 1e9, 10 g each, micrometre gaps): the blocks
+// are stiff along the springs, so the max-norm of z = P^-1 r understates the error of the chain's
+// common motion by about h^2 k / m; StepSettings::cg_rms_tolerance bounds it in the mass norm, and
+// the answer's net momentum is given back exactly.
+TEST(System, TheRmsToleranceBoundsTheVelocityErrorWhereTheMaxNormOfZUnderstatesIt) {
+  const auto chain = [](double tolerance, double rms_tolerance) {
+    System s;
+    std::vector<Index> p;
+    for (int i = 0; i < 8; ++i)
+      p.push_back(s.add_particle(Vec3(1e-6 * i, 1e-6 * (i % 3), 0.0), Vec3(0.3 * std::sin(i), 0.2 * i, 0.1), 0.01));
+    for (int i = 0; i + 1 < 8; ++i) s.add_binding_spring({p[i], p[i + 1], 1e9, 1.0});
+    s.step_settings().cg_tolerance = tolerance;
+    s.step_settings().cg_rms_tolerance = rms_tolerance;
+    s.step(1.0 / 240);
+    return std::pair{Vectors3(s.particles().v), s.linear_momentum()};
+  };
+  const auto [reference, p_reference] = chain(1e-14, 0.0);
+  const auto rms = [&](const Vectors3& v) { return std::sqrt((v - reference).colwise().squaredNorm().mean()); };
+  const double bound = 1e-3;
+  const auto [loose_z, p_loose_z] = chain(bound, 0.0);
+  EXPECT_GT(rms(loose_z), 10.0 * bound) << "z no longer understates the chain's error: the premise changed";
+  const auto [bounded, p_bounded] = chain(1e-14, bound);
+  EXPECT_LE(rms(bounded), bound);
+  EXPECT_GT(rms(bounded), 0.0) << "the solve ran to round-off: the bound was not what stopped it";
+  Vec3 p_exact = Vec3::Zero();  // internal springs: the start's momentum plus gravity's impulse
+  for (int i = 0; i < 8; ++i)
+    p_exact += 0.01 * (Vec3(0.3 * std::sin(i), 0.2 * i, 0.1) + SystemSettings{}.gravity / 240);
+  // Exact to round-off, which the system's conditioning (h^2 k / m, 4e8) multiplies: as the solve to
+  // round-off is; the max-norm stop misses the momentum by its full error.
+  const double h = 0.5 / 240, round_off = 4.0 * DBL_EPSILON * (h * h * 1e9 / 0.01) * p_exact.norm();
+  EXPECT_LT((p_reference - p_exact).norm(), round_off);
+  EXPECT_LT((p_bounded - p_exact).norm(), round_off);
+  EXPECT_GT((p_loose_z - p_exact).norm(), 1e3 * round_off);
+}
+
 TEST(System, BindingsReportTheForceTheyCarry) {
   System s(SystemSettings{Vec3(0, -9.81, 0), false});
   RigidBodySettings hook;
@@ -491,6 +527,10 @@ INSTANTIATE_TEST_SUITE_P(
                       BadStepSetting{"cfl = -0.5", [](StepSettings& s) { s.cfl = -0.5; }},
                       BadStepSetting{"cfl = 1.5", [](StepSettings& s) { s.cfl = 1.5; }},
                       BadStepSetting{"max_substeps = 0", [](StepSettings& s) { s.max_substeps = 0; }},
+                      BadStepSetting{"relative_tolerance = nan", [](StepSettings& s) { s.relative_tolerance = kNaN; }},
+                      BadStepSetting{"relative_tolerance = -0.1", [](StepSettings& s) { s.relative_tolerance = -0.1; }},
+                      BadStepSetting{"relative_tolerance = inf",
+                                     [](StepSettings& s) { s.relative_tolerance = kInfinity; }},
                       BadStepSetting{"multigrid needs jacobi_preconditioner",
                                      [](StepSettings& s) {
                                        s.multigrid = true;

@@ -35,6 +35,10 @@ class LinearOperator {
   virtual void apply(const GeneralizedVector& u, GeneralizedVector& out) = 0;
   /// z = P^-1 r, projected.
   virtual void precondition(const GeneralizedVector& r, GeneralizedVector& z) = 0;
+  /// r^T M^-1 r / M (Preconditioner::mass_norm_squared): its root bounds the RMS velocity error.
+  virtual double mass_norm_squared(const GeneralizedVector& r) const = 0;
+  /// The uniform translation that gives back r's net linear momentum (Preconditioner::net_translation).
+  virtual void net_translation(const GeneralizedVector& r, GeneralizedVector& t) const = 0;
   /// Zeroes rows without unknowns and constrained directions.
   virtual void project(GeneralizedVector& u) const = 0;
   /// Sets the constrained directions to their prescribed values (joint rows' targets).
@@ -62,12 +66,14 @@ enum class Alternative { if_exact, if_smaller };
 class ConjugateGradients {
  public:
   void resize(Index particle_count, Index rigid_count);
-  /// Solves S y = c to the max-norm tolerance on z = P^-1 r, y holding the initial guess; with
+  /// Solves S y = c to the max-norm tolerance on z = P^-1 r, or until the bound sqrt(r^T M^-1 r / M) on
+  /// the RMS velocity error is at most rms_tolerance (0: never), y holding the initial guess; with
   /// `alternative`, a second guess taken instead by `rule`. Without `iterate` (no implicit term: S is
   /// the mass matrix, which the preconditioner inverts exactly) one preconditioned correction.
   /// Throws naming step `step` when an iteration turns non-finite.
   SolveResult solve(LinearOperator& op, const GeneralizedVector& c, GeneralizedVector& y, double tolerance,
-                    int max_iterations, bool iterate, GeneralizedVector* alternative, Alternative rule, long step);
+                    double rms_tolerance, int max_iterations, bool iterate, GeneralizedVector* alternative,
+                    Alternative rule, long step);
 
  private:
   GeneralizedVector m_r, m_z, m_p, m_q;

@@ -38,6 +38,10 @@ class ImplicitSystem final : public LinearOperator {
   void precondition(const GeneralizedVector& r, GeneralizedVector& z) override {
     m_preconditioner.apply(r, z, m_constraints);
   }
+  double mass_norm_squared(const GeneralizedVector& r) const override { return m_preconditioner.mass_norm_squared(r); }
+  void net_translation(const GeneralizedVector& r, GeneralizedVector& t) const override {
+    m_preconditioner.net_translation(r, t);
+  }
   void project(GeneralizedVector& u) const override { m_constraints.project(u); }
   void impose(GeneralizedVector& u) const override { m_constraints.impose_joints(u); }
 

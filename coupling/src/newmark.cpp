@@ -207,7 +207,8 @@ void Newmark::implicit_half_velocity(const StepModel& s, double dt, StepStats& s
     keep_half_velocity(s);
     return chord_error(s, dt);
   };
-  const double tolerance = s.settings.cg_tolerance;
+  // The turns converge to the solves' accuracy, not below it: each answer is good to that only.
+  const double tolerance = std::max(s.settings.cg_tolerance, s.settings.cg_rms_tolerance);
   const int passes = s.settings.rotation_iterations;
   // First the fixed point of the arms J(theta) r, the work-conserving form (see above): each pass
   // contracts the turn's error by about |theta| / 2, so with the predicted turn it usually holds at
@@ -1260,8 +1261,8 @@ SolveResult Newmark::solve(const StepModel& s, const SolveCoefficients& k, bool 
     m_preconditioner_key = {k, jacobi};
   }
   try {
-    return m_cg.solve(m_system, m_c, m_y, settings.cg_tolerance, settings.cg_max_iterations, linear_solve, alternative,
-                      rule, m_step_count);
+    return m_cg.solve(m_system, m_c, m_y, settings.cg_tolerance, settings.cg_rms_tolerance, settings.cg_max_iterations,
+                      linear_solve, alternative, rule, m_step_count);
   } catch (const Error& e) {
     // Which term turns finite velocities into non-finite forces: each force's implicit products, and
     // the binding springs', on a finite probe (a NaN coefficient set where nothing validated it).

@@ -42,11 +42,15 @@ void Preconditioner::build(const StepModel& model, const std::vector<Mat3>& body
     }
     model.soft.gather_synchronized(m_diag_blocks);
   }
+  m_body_mass_inverse.resize(static_cast<std::size_t>(u.r));
+  m_dynamic_mass = u.dof_mass.sum();
   for (Index b = 0; b < u.r; ++b) {
     Mat6& block = m_body_preconditioner[b];
     block.setZero();
     block.topLeftCorner<3, 3>() = model.bodies.mass[b] * Mat3::Identity();
     block.bottomRightCorner<3, 3>() = body_I[b];
+    m_body_mass_inverse[b] = u.dynamic_body[b] ? Mat6(block.inverse()) : Mat6::Zero();
+    if (u.dynamic_body[b]) m_dynamic_mass += model.bodies.mass[b];
   }
   if (jacobi) model.hard.add_preconditioner_blocks(m_diag_blocks, m_body_preconditioner);
   for (Index i = 0; i < u.n; ++i) {
@@ -97,6 +101,32 @@ void Preconditioner::build_multigrid(const StepModel& model, double h, double be
   if (m_multigrid.needs_blocks_again()) {  // the first update: the pairs chose level 1, now its blocks
     m_multigrid.begin(u.dynamic_mask, m_diag_blocks, -h);
     pass();
+  }
+}
+
+// One pass in a fixed order: the same bits for any thread count (a pass over r, against the CG
+// iteration's products and reductions).
+double Preconditioner::mass_norm_squared(const GeneralizedVector& r) const {
+  const Unknowns& u = *m_unknowns;
+  double sum = 0.0;
+  for (Index i = 0; i < u.n; ++i)
+    if (u.dof_mass[i] > 0.0) sum += r.particles.col(i).squaredNorm() / u.dof_mass[i];
+  for (Index b = 0; b < u.r; ++b) sum += r.rigid.col(b).dot(m_body_mass_inverse[b] * r.rigid.col(b));
+  return m_dynamic_mass > 0.0 ? sum / m_dynamic_mass : 0.0;
+}
+
+void Preconditioner::net_translation(const GeneralizedVector& r, GeneralizedVector& t) const {
+  const Unknowns& u = *m_unknowns;
+  Vec3 sum = Vec3::Zero();
+  for (Index i = 0; i < u.n; ++i)
+    if (u.dof_mass[i] > 0.0) sum += r.particles.col(i);
+  for (Index b = 0; b < u.r; ++b)
+    if (u.dynamic_body[b]) sum += r.rigid.col(b).head<3>();
+  const Vec3 c = m_dynamic_mass > 0.0 ? Vec3(sum / m_dynamic_mass) : Vec3::Zero();
+  for (Index i = 0; i < u.n; ++i) t.particles.col(i) = u.dof_mass[i] > 0.0 ? c : Vec3::Zero();
+  for (Index b = 0; b < u.r; ++b) {
+    t.rigid.col(b).setZero();
+    if (u.dynamic_body[b]) t.rigid.col(b).head<3>() = c;
   }
 }
 

@@ -20,6 +20,10 @@ void validate(const StepSettings& s) {
   if (!(std::isfinite(s.turn_work_per_implicit_step) && s.turn_work_per_implicit_step > 0.0))
     fail("step settings: turn_work_per_implicit_step = ", s.turn_work_per_implicit_step,
          ", must be positive and finite");
+  if (!(std::isfinite(s.cg_rms_tolerance) && s.cg_rms_tolerance >= 0.0))
+    fail("step settings: cg_rms_tolerance = ", s.cg_rms_tolerance, ", must be >= 0 and finite (0: off)");
+  if (!(std::isfinite(s.relative_tolerance) && s.relative_tolerance >= 0.0))
+    fail("step settings: relative_tolerance = ", s.relative_tolerance, ", must be >= 0 and finite (0: cg_tolerance)");
   if (!(s.divergence_factor >= 0.0))
     fail("step settings: divergence_factor = ", s.divergence_factor, ", must be >= 0 (0: no divergence check)");
   if (!(std::isfinite(s.sleep_speed) && s.sleep_speed >= 0.0))

@@ -547,15 +547,22 @@ int System::turn_substeps(double frame_dt, double energy) {
   return std::max(1, static_cast<int>(count));
 }
 
-double System::scene_speed(double energy) const {
-  double mass = 0.0;
+double System::rms_acceleration(const Vectors3& v_start, const Vectors3& body_v_start, double frame_dt) const {
+  if (v_start.cols() != m_particles.size() || body_v_start.cols() != m_bodies.size()) return 0.0;
+  double sum = 0.0, mass = 0.0;
   for (Index i = 0; i < m_particles.size(); ++i)
-    if (m_particles.kind[i] == ParticleKind::free || m_particles.kind[i] == ParticleKind::soft_spring)
+    if (m_particles.kind[i] == ParticleKind::free || m_particles.kind[i] == ParticleKind::soft_spring) {
+      sum += m_particles.mass[i] * (m_particles.v.col(i) - v_start.col(i)).squaredNorm();
       mass += m_particles.mass[i];
+    }
   for (Index b = 0; b < m_bodies.size(); ++b)
-    if (!m_bodies.kinematic[b]) mass += m_bodies.mass[b];
+    if (!m_bodies.kinematic[b]) {
+      sum += m_bodies.mass[b] * (m_bodies.v.col(b) - body_v_start.col(b)).squaredNorm();
+      mass += m_bodies.mass[b];
+    }
   if (!(mass > 0.0)) return 0.0;
-  return std::sqrt(2.0 * std::max(energy, 0.0) / mass);
+  const double a = std::sqrt(sum / mass) / frame_dt;
+  return std::isfinite(a) ? a : 0.0;
 }
 
 StepStats System::run_substeps(double frame_dt, int substeps) {
@@ -708,9 +715,37 @@ StepStats System::advance_awake(double frame_dt) {
   const double limit = stable_dt();  // as set
   const int as_set = substeps_for(frame_dt, limit);
   const bool cheap_explicit = !m_step_settings.implicit_elasticity && as_set > 0 && as_set <= kCheapExplicitSubsteps;
-  if (!m_step_settings.automatic || cheap_explicit) {
+  if (!m_step_settings.automatic) {
     if (as_set == 0) too_many(limit);
-    if (cheap_explicit) m_chose_implicit = false;
+    return run_substeps(frame_dt, as_set);
+  }
+  // The solves' tolerance for this frame (StepSettings::relative_tolerance), put back whatever happens.
+  struct RestoreTolerance {
+    System& system;
+    double cg_rms_tolerance;
+    ~RestoreTolerance() { system.m_step_settings.cg_rms_tolerance = cg_rms_tolerance; }
+  } restore_tolerance{*this, m_step_settings.cg_rms_tolerance};
+  // The frame's velocity change per substep is about a dt, with a the last frame's RMS acceleration
+  // (|gravity| before a first frame): what a falling, swinging or spun scene changes by, and nearly
+  // nothing in one settling to rest, whose solves then tighten. Measured again at this frame's end.
+  const double acceleration = m_frame_acceleration >= 0.0 ? m_frame_acceleration : m_settings.gravity.norm();
+  struct MeasureAcceleration {
+    System& system;
+    Vectors3 v_start;
+    Vectors3 body_v_start;
+    double frame_dt;
+    ~MeasureAcceleration() { system.m_frame_acceleration = system.rms_acceleration(v_start, body_v_start, frame_dt); }
+  } measure{*this, m_particles.v, m_bodies.v, frame_dt};
+  // A solve error must not keep a scene at rest awake either: at most a tenth of sleep_speed.
+  const auto loosen = [&](int substeps, double fraction) {
+    if (substeps <= 0) return;
+    double rms = fraction * m_step_settings.relative_tolerance * acceleration * frame_dt / substeps;
+    if (m_step_settings.sleep) rms = std::min(rms, 0.1 * m_step_settings.sleep_speed);
+    m_step_settings.cg_rms_tolerance = std::max(restore_tolerance.cg_rms_tolerance, rms);
+  };
+  if (cheap_explicit) {
+    m_chose_implicit = false;
+    loosen(as_set, kExplicitToleranceFactor);
     return run_substeps(frame_dt, as_set);
   }
   // The turn bound of implicit elasticity, from the state at the frame's start.
@@ -743,13 +778,14 @@ StepStats System::advance_awake(double frame_dt) {
         implicit = own;  // every force whose own count is at most this stays explicit
     }
   }
-  // Costs in force evaluations: one per substep plus its CG iterations (a CG product visits the
-  // elements as a force evaluation does), from the counts last seen (a guess of a few tens of
+  // Costs in CG iterations (a CG product visits the elements as a force evaluation does): a substep's
+  // own work is kSubstepCost of them, plus its CG iterations, from the counts last seen (a guess of a few tens of
   // iterations for an implicit step never tried). A switch needs a clear gain (hysteresis), so a
   // frame on the edge does not alternate.
-  const double explicit_cost = as_set == 0 ? kInfinity : as_set * (1.0 + m_explicit_iterations);
+  const double explicit_cost = as_set == 0 ? kInfinity : as_set * (kSubstepCost + m_explicit_iterations);
   const double implicit_cost =
-      implicit == 0 ? kInfinity : implicit * (1.0 + (m_implicit_iterations > 0.0 ? m_implicit_iterations : 30.0));
+      implicit == 0 ? kInfinity
+                    : implicit * (kSubstepCost + (m_implicit_iterations > 0.0 ? m_implicit_iterations : 30.0));
   const double hysteresis = 1.25;
   const bool go_implicit =
       (m_chose_implicit ? implicit_cost < hysteresis * explicit_cost : hysteresis * implicit_cost < explicit_cost);
@@ -759,27 +795,23 @@ StepStats System::advance_awake(double frame_dt) {
   if (!go_implicit) {
     if (as_set == 0) too_many(limit);
     m_chose_implicit = false;
+    loosen(as_set, kExplicitToleranceFactor);
     const StepStats stats = run_substeps(frame_dt, as_set);
     m_explicit_iterations = iterations(stats);
     return stats;
   }
   if (implicit == 0) too_many(implicit_limit);
-  // Implicit for this frame: the settings and the forces' offers are put back whatever happens.
+  // Implicit for this frame: the setting and the forces' offers are put back whatever happens.
   struct Restore {
     System& system;
-    double cg_tolerance;
     ~Restore() {
-      system.m_step_settings.cg_tolerance = cg_tolerance;
       system.m_step_settings.implicit_elasticity = false;
       for (auto& f : system.m_forces) f->offer_definite_differentials(false);
     }
-  } restore{*this, m_step_settings.cg_tolerance};
+  } restore{*this};
   // Implicit elasticity is first-order accurate in the stiff modes: its error per step is far above a
-  // solve to round-off, so the solves stop at kImplicitRelativeTolerance of the scene's speed (the
-  // speed of its kinetic and elastic energy spread over its dynamic mass), or the user's tolerance
-  // where that is looser.
-  m_step_settings.cg_tolerance =
-      std::max(m_step_settings.cg_tolerance, kImplicitRelativeTolerance * scene_speed(energy));
+  // solve to round-off, so the solves stop at relative_tolerance of a substep's velocity change.
+  loosen(implicit, 1.0);
   m_step_settings.implicit_elasticity = true;
   // Only a force whose own stable step is shorter than the substep is made implicit: one stable there
   // explicitly costs a force evaluation per substep and nothing in the solves (dihedral bending on a

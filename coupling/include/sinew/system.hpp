@@ -78,6 +78,12 @@ struct StepSettings {
   /// would tighten for a good initial guess (step 4 starts from step 1's answer) and loosen for a
   /// poor one, and one relative to |v| would loosen with speed.
   double cg_tolerance = 1e-9;
+  /// CG also stops when sqrt(r^T M^-1 r / M), r the residual, M the mass matrix and M its total over
+  /// the unknowns, is at most this [m/s] (0: off). That bounds the solve's mass-weighted RMS velocity
+  /// error whatever the preconditioner (S - M is positive semidefinite), where the max-norm of z can
+  /// understate it: a stiff spring's blocks shrink z along the common motion of its ends. advance()
+  /// sets it from relative_tolerance under `automatic`.
+  double cg_rms_tolerance = 0.0;
   /// CG stops after this many iterations and the step goes on with what it has (StepStats::cg_converged
   /// turns false): a bound on the step's cost when a solve stalls, not a convergence criterion.
   int cg_max_iterations = 1000;
@@ -137,6 +143,12 @@ struct StepSettings {
   /// missed work (Force::turn_work_rate times the squared step) is at most this fraction of the
   /// scene's kinetic and elastic energy in each step.
   double turn_work_per_implicit_step = 0.01;
+  /// Under `automatic`, the solves of the scheme advance() chose stop at this fraction of a substep's
+  /// velocity change (a dt, a the larger of |gravity| and the last frame's RMS acceleration; explicit
+  /// frames at System::kExplicitToleranceFactor of it), or at cg_tolerance where that is looser.
+  /// The accuracy a user states: smaller is more accurate and slower; 0 keeps cg_tolerance. At 1e-1
+  /// an implicit cloth gained energy (sinew-schemes, the hanging cloth); 1e-2 keeps a tenfold margin.
+  double relative_tolerance = 1e-2;
   /// Step 1 takes each body's inertia at its half-step orientation, R(theta/2) I R(theta/2)^T, which
   /// gives w^{n+1/2} ~ w + dt/2 I^-1 (L x w): the torque-free drift of an asymmetric body's angular
   /// velocity, to second order. Off: the inertia at t^n (first order).
@@ -317,9 +329,11 @@ class System {
   ///    substep count by at most kKeepExplicitFactor (the count is raised to its own); a force joins
   ///    the solves (offers its definite differential) only when its own stable step is shorter than
   ///    the substep taken; when its cost is lower: each scheme's
-  ///    cost per substep is one force evaluation plus its CG iterations, counted from the last frames
-  ///    that used it (deterministic: counts, not clocks); its solves stop at kImplicitRelativeTolerance
-  ///    of the scene's speed (scene_speed()) unless cg_tolerance is looser;
+  ///    cost per substep is kSubstepCost plus its CG iterations, counted from the last frames
+  ///    that used it (deterministic: counts, not clocks);
+  ///  - the solves of a frame it chose stop at StepSettings::relative_tolerance of a substep's velocity
+  ///    change, a dt with a the larger of |gravity| and the last frame's RMS acceleration (explicit
+  ///    frames, second-order accurate, at kExplicitToleranceFactor of that), unless cg_tolerance is looser;
   ///  - implicit_elasticity set by the user: as set, in substeps bounded by the turn the same way.
   ///
   /// Sleeping (StepSettings::sleep): after a frame that leaves the scene at rest for sleep_time, the
@@ -351,9 +365,16 @@ class System {
   /// bending kept explicit at four substeps a frame took half the time of bending implicit at one, with less error, on
   /// the hanging cloth).
   static constexpr int kKeepExplicitFactor = 4;
-  /// When advance() chooses implicit elasticity, its solves stop at this fraction of the scene's speed
-  /// (or at StepSettings::cg_tolerance where that is looser).
-  static constexpr double kImplicitRelativeTolerance = 1e-4;
+  /// advance()'s explicit frames stop their solves at this fraction of StepSettings::relative_tolerance:
+  /// explicit elasticity is second-order accurate, so a solve error that implicit frames' first-order
+  /// error hides would show there (sinew-schemes: at 1e-2 the net's error doubled, at 1e-4 it is the
+  /// reference's own).
+  static constexpr double kExplicitToleranceFactor = 1e-2;
+  /// advance()'s cost model counts a substep's own work (force evaluations, collisions, the solves'
+  /// set-up: right-hand sides, preconditioner blocks) as this many CG iterations (sinew-schemes: at 1,
+  /// once loose solves made explicit substeps cheap in iterations, the hello scene chose 13 explicit
+  /// substeps a frame at 2.4 ms over 4.6 implicit ones at 1.0 ms).
+  static constexpr double kSubstepCost = 4.0;
   /// The explicit elastic forces' stable step (binding springs and implicitly treated forces impose none).
   double stable_dt();
   double time() const { return m_time; }
@@ -425,6 +446,11 @@ class System {
   double m_explicit_iterations = 0.0;
   double m_implicit_iterations = 0.0;
   bool m_chose_implicit = false;
+  // The last frame's RMS acceleration (rms_acceleration()), which sets the next frame's tolerance.
+  double m_frame_acceleration = -1.0;  // -1: no frame yet
+  /// The mass-weighted RMS velocity change of the free and soft-spring particles and the dynamic
+  /// bodies since v_start and body_v_start, over frame_dt (0 where undefined).
+  double rms_acceleration(const Vectors3& v_start, const Vectors3& body_v_start, double frame_dt) const;
   /// The substep count advance() runs frame_dt in, for the stable step `limit` (0 where the count
   /// would exceed StepSettings::max_substeps: advance() then reports it).
   int substeps_for(double frame_dt, double limit) const;
@@ -433,8 +459,6 @@ class System {
   int turn_substeps(double frame_dt, double energy);
   /// Kinetic energy plus the elastic forces' energy (what advance()'s choice weighs against).
   double visible_energy();
-  /// sqrt(2 E / M): E = visible_energy(), M the dynamic mass (particles and bodies).
-  double scene_speed(double energy) const;
   StepStats run_substeps(double frame_dt, int substeps);
   /// advance() while awake: the scheme chosen for the frame and its substeps.
   StepStats advance_awake(double frame_dt);
