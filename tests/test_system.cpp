@@ -527,6 +527,8 @@ INSTANTIATE_TEST_SUITE_P(
                       BadStepSetting{"cfl = -0.5", [](StepSettings& s) { s.cfl = -0.5; }},
                       BadStepSetting{"cfl = 1.5", [](StepSettings& s) { s.cfl = 1.5; }},
                       BadStepSetting{"max_substeps = 0", [](StepSettings& s) { s.max_substeps = 0; }},
+                      BadStepSetting{"cg_rms_tolerance = nan", [](StepSettings& s) { s.cg_rms_tolerance = kNaN; }},
+                      BadStepSetting{"cg_rms_tolerance = -1", [](StepSettings& s) { s.cg_rms_tolerance = -1.0; }},
                       BadStepSetting{"relative_tolerance = nan", [](StepSettings& s) { s.relative_tolerance = kNaN; }},
                       BadStepSetting{"relative_tolerance = -0.1", [](StepSettings& s) { s.relative_tolerance = -0.1; }},
                       BadStepSetting{"relative_tolerance = inf",
