@@ -1585,6 +1585,45 @@ TEST(BulletCollisions, ACollidingClothOnASpinningBoxGainsNoEnergyAcrossSubsteps)
   EXPECT_LT(r.worst_gain, 1e-9 * r.start) << "of " << r.start << " J";
 }
 
+// Step 3 finds each particle's objects through a tree of their boxes (btDbvt), refitted every step and
+// rebuilt when the world's objects change: a box moved under a falling particle catches it, one moved
+// away or removed and replaced by another (the same object count) no longer does, the new one does.
+TEST(BulletCollisions, TheObjectTreeFollowsBodiesMovedRemovedAndAdded) {
+  BulletWorld bw(btVector3(0, 0, 0));
+  btRigidBody* a = add_box(bw, btVector3(0.1, 0.1, 0.1), 0.0, scenes::at(btVector3(0, 0, 0)));
+  bullet::Coupling coupling(&bw.world());
+  System& s = coupling.system();
+  s.step_settings().sleep = false;
+  const double top = 0.1 + bullet::CouplingSettings{}.thickness;
+  const auto drop = [&](double x) { return s.add_particle(Vec3(x, 0.2, 0), Vec3(0, -1, 0), 0.01); };
+  const auto ticks = [&](int n) {
+    for (int t = 0; t < n; ++t) bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+  };
+  const Index p0 = drop(0.0);
+  ticks(60);  // 0.25 s: 0.25 m of fall, stopped by the box after 0.09 m of it
+  EXPECT_NEAR(s.particles().x(1, p0), top, 1e-9);
+  // Moved under another falling particle: it catches that one; the first (given its speed again)
+  // falls past where the box was.
+  a->setWorldTransform(scenes::at(btVector3(3, 0, 0)));
+  s.particles().v.col(p0) = Vec3(0, -1, 0);
+  const Index p1 = drop(3.0);
+  ticks(60);
+  EXPECT_LT(s.particles().x(1, p0), -0.1);
+  EXPECT_NEAR(s.particles().x(1, p1), top, 1e-9);
+  // Removed, and another box added under a third particle (the world holds as many objects as before).
+  bw.world().removeRigidBody(a);
+  btRigidBody* b = add_box(bw, btVector3(0.1, 0.1, 0.1), 0.0, scenes::at(btVector3(5, 0, 0)));
+  ASSERT_EQ(bw.world().getNumCollisionObjects(), 1);
+  s.particles().v.col(p1) = Vec3(0, -1, 0);
+  const Index p2 = drop(5.0);
+  ticks(60);
+  EXPECT_LT(s.particles().x(1, p1), -0.1);
+  EXPECT_NEAR(s.particles().x(1, p2), top, 1e-9);
+  bw.world().removeRigidBody(b);
+  bw.world().addRigidBody(a);  // the world's destructor removes both
+  bw.world().addRigidBody(b);
+}
+
 // A cloth lying on a box that moves down at 6 m/s (no gravity; the cloth slightly faster, so it
 // presses on the face): each step must meet the face where the box is at the step's end, not where
 // it was when the tick started (|v| dt = 2.5 cm higher at 1/240 s). Both for a body the coupling has

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 
 namespace sinew::bullet {
 
@@ -167,11 +168,18 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
   int hit = -1;
   phi = kInfinity;
   normal = Vec3::Zero();
-  for (int o = 0; o < objects.size(); ++o) {
-    const btVector3& lo = m_aabb_min[o];
-    const btVector3& hi = m_aabb_max[o];
-    if (p.x() < lo.x() || p.y() < lo.y() || p.z() < lo.z() || p.x() > hi.x() || p.y() > hi.y() || p.z() > hi.z())
-      continue;
+  // The objects whose box holds the particle (closed boxes), taken in the world's order.
+  struct Collect : btDbvt::ICollide {
+    std::vector<int>* out;
+    void Process(const btDbvtNode* leaf) override {
+      out->push_back(static_cast<int>(reinterpret_cast<intptr_t>(leaf->data)));
+    }
+  } collect;
+  collect.out = &m_candidates;
+  m_candidates.clear();
+  m_tree.collideTVNoStackAlloc(m_tree.m_root, btDbvtVolume::FromCE(p, btVector3(0, 0, 0)), m_stack, collect);
+  std::sort(m_candidates.begin(), m_candidates.end());
+  for (const int o : m_candidates) {
     // CF_NO_CONTACT_RESPONSE: Bullet reports the object's contacts and resolves none; neither does sinew.
     if (!objects[o]->hasContactResponse()) continue;
     if (!m_tied.empty() && m_rigid_particles) {
@@ -244,6 +252,25 @@ void BulletCollisions::place_objects(const CollisionContext& c) {
     object->getCollisionShape()->getAabb(m_frame[o], m_aabb_min[o], m_aabb_max[o]);
     m_aabb_min[o] -= pad;
     m_aabb_max[o] += pad;
+  }
+  // Refit the tree's leaves (Bullet reuses the nodes it frees: no allocation once it has its size);
+  // rebuild it when the world's objects are not the ones indexed.
+  bool same = m_indexed.size() == static_cast<std::size_t>(count);
+  for (int o = 0; same && o < count; ++o) same = m_indexed[static_cast<std::size_t>(o)] == objects[o];
+  if (!same) {
+    m_tree.clear();
+    m_indexed.assign(static_cast<std::size_t>(count), nullptr);
+    m_leaves.assign(static_cast<std::size_t>(count), nullptr);
+  }
+  for (int o = 0; o < count; ++o) {
+    btDbvtVolume box = btDbvtVolume::FromMM(m_aabb_min[o], m_aabb_max[o]);
+    const auto k = static_cast<std::size_t>(o);
+    if (same) {
+      m_tree.update(m_leaves[k], box);
+    } else {
+      m_indexed[k] = objects[o];
+      m_leaves[k] = m_tree.insert(box, reinterpret_cast<void*>(static_cast<intptr_t>(o)));
+    }
   }
 }
 

@@ -4,6 +4,7 @@
 
 #include "sinew/system.hpp"
 
+#include <BulletCollision/BroadphaseCollision/btDbvt.h>
 #include <btBulletDynamicsCommon.h>
 
 #include <functional>
@@ -34,7 +35,10 @@ struct CollisionSettings {
 
 /// The Bullet world's collision objects as a collision source of step 3: collides free and soft-bound
 /// particles with every object whose filter admits them (CollisionGeometry::collides with the
-/// object's broadphase group and mask), in the world's object order (deterministic): projects
+/// object's broadphase group and mask), in the world's object order (deterministic), found through a
+/// dynamic AABB tree (Bullet's btDbvt) of the objects' boxes where the step puts them: each particle
+/// meets only the objects whose box holds it, so the cost follows the contacts, not particles times
+/// objects. It projects
 /// penetrating particles out to the thickness, removes their approaching normal velocity relative to
 /// the surface with Coulomb friction on the tangential part, and hands step 4 a velocity constraint
 /// against prescribed (static, kinematic) surfaces. A dynamic body takes the opposite impulse: through
@@ -93,8 +97,11 @@ class BulletCollisions final : public CollisionSource {
   /// normal (taken from the side the particle came from when it entered this step). -1 when none.
   int closest_object(const CollisionContext& c, Index i, double& phi, Vec3& normal) const;
 
-  /// Fills m_frame_n and m_frame (object o at t^n and at the step's prediction) and the AABBs.
+  /// Fills m_frame_n and m_frame (object o at t^n and at the step's prediction) and the AABBs, and
+  /// brings the tree up to date (refitted leaves; rebuilt when the world's objects changed).
   void place_objects(const CollisionContext& c);
+  BulletCollisions(const BulletCollisions&) = delete;  // the tree owns its nodes
+  BulletCollisions& operator=(const BulletCollisions&) = delete;
 
   btCollisionWorld* m_world;
   BulletFrame m_bullet_frame;
@@ -103,6 +110,11 @@ class BulletCollisions final : public CollisionSource {
   CollisionSettings m_settings;
   const std::unordered_map<const btCollisionObject*, Index>* m_rigid_particles;
   std::vector<btVector3> m_aabb_min, m_aabb_max;
+  btDbvt m_tree;                                    // the objects' padded boxes, leaf data: object index
+  std::vector<btDbvtNode*> m_leaves;                // per object
+  std::vector<const btCollisionObject*> m_indexed;  // the objects the leaves stand for, in world order
+  mutable btNodeStack m_stack;                      // the tree queries' stack (kept: no allocation per query)
+  mutable std::vector<int> m_candidates;            // one particle's objects, sorted into world order
   struct Pending {
     btRigidBody* body;
     btVector3 impulse, torque_impulse;
