@@ -2,8 +2,8 @@
 // with bodies. A 40 x 40 cloth (1.2 m) falls flat onto a grid of N static boxes (1, 10 and 100), or
 // hangs in the air while the same N boxes stand 50 m away; the program prints, per case, the median
 // over runs of the mean time per 1/60 s frame (four 1/240 s ticks) spent in step 3
-// (PhaseTimes::process_collisions) and in the whole tick, with the cloth's lowest node at the end (on
-// the boxes' tops, 0.52 m, plus the thickness, or at its start, 0.6 m, in the air). With a
+// (PhaseTimes::process_collisions) and in the whole tick, with the cloth's lowest node at the end (draped
+// below the boxes' tops, 0.52 m, between them, or at its start, 0.6 m, in the air). With a
 // broadphase the far boxes cost (almost) nothing and the near ones what their contacts cost.
 //
 //   sinew-bench-contacts [--runs N] [--frames N] [--size N]

@@ -253,7 +253,7 @@ void BulletCollisions::place_objects(const CollisionContext& c) {
     m_aabb_min[o] -= pad;
     m_aabb_max[o] += pad;
   }
-  // Refit the tree's leaves (Bullet reuses the nodes it frees: no allocation once it has its size);
+  // Refit the tree's leaves that moved (Bullet reuses the nodes it frees: no allocation once it has its size);
   // rebuild it when the world's objects are not the ones indexed.
   bool same = m_indexed.size() == static_cast<std::size_t>(count);
   for (int o = 0; same && o < count; ++o) same = m_indexed[static_cast<std::size_t>(o)] == objects[o];
@@ -266,7 +266,8 @@ void BulletCollisions::place_objects(const CollisionContext& c) {
     btDbvtVolume box = btDbvtVolume::FromMM(m_aabb_min[o], m_aabb_max[o]);
     const auto k = static_cast<std::size_t>(o);
     if (same) {
-      m_tree.update(m_leaves[k], box);
+      const btDbvtVolume& leaf = m_leaves[k]->volume;
+      if (leaf.Mins() != box.Mins() || leaf.Maxs() != box.Maxs()) m_tree.update(m_leaves[k], box);  // static: kept
     } else {
       m_indexed[k] = objects[o];
       m_leaves[k] = m_tree.insert(box, reinterpret_cast<void*>(static_cast<intptr_t>(o)));
