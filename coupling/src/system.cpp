@@ -736,10 +736,13 @@ StepStats System::advance_awake(double frame_dt) {
     double frame_dt;
     ~MeasureAcceleration() { system.m_frame_acceleration = system.rms_acceleration(v_start, body_v_start, frame_dt); }
   } measure{*this, m_particles.v, m_bodies.v, frame_dt};
-  // A solve error must not keep a scene at rest awake either: at most a tenth of sleep_speed.
+  // The scale is at least sleep_speed, the speed below which the scene counts as at rest: a scene at
+  // rest has no acceleration, but its velocities only need to stay well below that. A solve error
+  // must not keep it awake either: at most a tenth of sleep_speed.
   const auto loosen = [&](int substeps, double fraction) {
     if (substeps <= 0) return;
-    double rms = fraction * m_step_settings.relative_tolerance * acceleration * frame_dt / substeps;
+    const double change = std::max(acceleration * frame_dt / substeps, m_step_settings.sleep_speed);
+    double rms = fraction * m_step_settings.relative_tolerance * change;
     if (m_step_settings.sleep) rms = std::min(rms, 0.1 * m_step_settings.sleep_speed);
     m_step_settings.cg_rms_tolerance = std::max(restore_tolerance.cg_rms_tolerance, rms);
   };

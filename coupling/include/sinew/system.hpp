@@ -143,9 +143,10 @@ struct StepSettings {
   /// missed work (Force::turn_work_rate times the squared step) is at most this fraction of the
   /// scene's kinetic and elastic energy in each step.
   double turn_work_per_implicit_step = 0.01;
-  /// Under `automatic`, the solves of the scheme advance() chose stop at this fraction of a substep's
-  /// velocity change (a dt, a the larger of |gravity| and the last frame's RMS acceleration; explicit
-  /// frames at System::kExplicitToleranceFactor of it), or at cg_tolerance where that is looser.
+  /// Under `automatic`, the solves of the scheme advance() chose stop (cg_rms_tolerance) at this
+  /// fraction of a substep's velocity change a dt, a the last frame's RMS acceleration (|gravity|
+  /// before the first), or of sleep_speed where that is larger (a scene at rest); explicit frames at
+  /// System::kExplicitToleranceFactor of it; with sleep on, at most sleep_speed / 10.
   /// The accuracy a user states: smaller is more accurate and slower; 0 keeps cg_tolerance. At 1e-1
   /// an implicit cloth gained energy (sinew-schemes, the hanging cloth); 1e-2 keeps a tenfold margin.
   double relative_tolerance = 1e-2;
@@ -331,9 +332,10 @@ class System {
   ///    the substep taken; when its cost is lower: each scheme's
   ///    cost per substep is kSubstepCost plus its CG iterations, counted from the last frames
   ///    that used it (deterministic: counts, not clocks);
-  ///  - the solves of a frame it chose stop at StepSettings::relative_tolerance of a substep's velocity
-  ///    change, a dt with a the larger of |gravity| and the last frame's RMS acceleration (explicit
-  ///    frames, second-order accurate, at kExplicitToleranceFactor of that), unless cg_tolerance is looser;
+  ///  - the solves of a frame it chose stop (StepSettings::cg_rms_tolerance, a bound on the RMS
+  ///    velocity error) at StepSettings::relative_tolerance of a substep's velocity change a dt, a the
+  ///    last frame's RMS acceleration, or of sleep_speed where larger (explicit frames, second-order
+  ///    accurate, at kExplicitToleranceFactor of that), unless cg_tolerance is met first;
   ///  - implicit_elasticity set by the user: as set, in substeps bounded by the turn the same way.
   ///
   /// Sleeping (StepSettings::sleep): after a frame that leaves the scene at rest for sleep_time, the
