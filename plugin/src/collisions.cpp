@@ -168,7 +168,7 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
   int hit = -1;
   phi = kInfinity;
   normal = Vec3::Zero();
-  // The objects whose box holds the particle (closed boxes), taken in the world's order.
+  // The objects whose swept box meets the particle's path over the step, taken in the world's order.
   struct Collect : btDbvt::ICollide {
     std::vector<int>* out;
     void Process(const btDbvtNode* leaf) override {
@@ -177,7 +177,11 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
   } collect;
   collect.out = &m_candidates;
   m_candidates.clear();
-  m_tree.collideTVNoStackAlloc(m_tree.m_root, btDbvtVolume::FromCE(p, btVector3(0, 0, 0)), m_stack, collect);
+  const btVector3 p_n = to_bullet(c.x_n->col(i));
+  btVector3 lo = p, hi = p;
+  lo.setMin(p_n);
+  hi.setMax(p_n);
+  m_tree.collideTVNoStackAlloc(m_tree.m_root, btDbvtVolume::FromMM(lo, hi), m_stack, collect);
   std::sort(m_candidates.begin(), m_candidates.end());
   for (const int o : m_candidates) {
     // CF_NO_CONTACT_RESPONSE: Bullet reports the object's contacts and resolves none; neither does sinew.
@@ -205,6 +209,14 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
         n = n_n;
         d = d_n + n_n.dot(x.col(i) - c.x_n->col(i));
       }
+    } else if (d < phi && m_spacing[o] > 0.0) {
+      // Outside at the end: it may still have passed through a thin or fast body within the step.
+      double d_c;
+      Vec3 n_c;
+      if (crossed(o, c.x_n->col(i), x.col(i), d_c, n_c)) {
+        d = d_c;
+        n = n_c;
+      }
     }
     if (d < phi) {
       phi = d;
@@ -213,6 +225,59 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
     }
   }
   return hit;
+}
+
+// Continuous test against one object: the particle's straight path x0 -> x1 and the object's path
+// (origin interpolated, orientation slerped between the step's two poses) give the particle's path in
+// the object's frame; sampled finer than the object's thinnest extent, a sample inside it after one
+// outside is a crossing, and bisection finds where it entered. The particle then belongs where it
+// entered, carried with the object to its end pose: the contact of a particle that stayed on the
+// near face while the body swept on.
+bool BulletCollisions::crossed(int o, const Vec3& x0, const Vec3& x1, double& phi, Vec3& normal) const {
+  const btCollisionShape* shape = m_world->getCollisionObjectArray()[o]->getCollisionShape();
+  const double thickness = m_settings.thickness;
+  const btTransform& f0 = m_frame_n[static_cast<std::size_t>(o)];
+  const btTransform& f1 = m_frame[static_cast<std::size_t>(o)];
+  const btVector3 q0 = f0.invXform(to_bullet(x0)), q1 = f1.invXform(to_bullet(x1));
+  const btQuaternion r0 = f0.getRotation(), r1 = f1.getRotation();
+  const double turn = static_cast<double>(r0.angleShortestPath(r1));
+  // A bound on the local path's length: the chord plus the turn times the farther arm.
+  const double length =
+      static_cast<double>((q1 - q0).length()) + turn * static_cast<double>(std::max(q0.length(), q1.length()));
+  const double spacing = m_spacing[static_cast<std::size_t>(o)];
+  if (!(length > spacing)) return false;  // the end test sees anything this short
+  double d;
+  Vec3 n;
+  if (!signed_distance(shape, f0, x0, thickness, d, n) || d < 0.0) return false;  // not from outside
+  const auto pose = [&](double s) {
+    return btTransform(r0.slerp(r1, btScalar(s)), f0.getOrigin().lerp(f1.getOrigin(), btScalar(s)));
+  };
+  const auto point = [&](double s) { return Vec3((1.0 - s) * x0 + s * x1); };
+  const int samples = std::min(kMaxSweepSamples, static_cast<int>(std::ceil(length / spacing)));
+  double outside = 0.0;
+  for (int j = 1; j < samples; ++j) {  // the end itself is the caller's test
+    const double s = double(j) / samples;
+    if (!signed_distance(shape, pose(s), point(s), thickness, d, n)) continue;
+    if (d >= 0.0) {
+      outside = s;
+      continue;
+    }
+    double inside = s;
+    for (int k = 0; k < 10; ++k) {  // the entry to 1/1024 of a sample
+      const double mid = 0.5 * (outside + inside);
+      if (signed_distance(shape, pose(mid), point(mid), thickness, d, n) && d < 0.0) inside = mid;
+      else outside = mid;
+    }
+    const btTransform at = pose(outside);
+    if (!signed_distance(shape, at, point(outside), thickness, d, n)) return false;
+    // The surface point under the entry, and its normal, in the object's frame, then at its end pose.
+    const btVector3 local_surface = at.invXform(to_bullet(point(outside) - d * n));
+    const btVector3 local_normal = at.getBasis().transpose() * to_bullet(n);
+    normal = to_eigen(f1.getBasis() * local_normal);
+    phi = normal.dot(x1 - to_eigen(f1 * local_surface));
+    return true;
+  }
+  return false;
 }
 
 // The particles' predicted positions x~^{n+1} are tested against each body where the step puts it
@@ -226,6 +291,7 @@ void BulletCollisions::place_objects(const CollisionContext& c) {
   m_frame.resize(static_cast<std::size_t>(count));
   m_aabb_min.resize(static_cast<std::size_t>(count));
   m_aabb_max.resize(static_cast<std::size_t>(count));
+  m_spacing.resize(static_cast<std::size_t>(count));
   const btScalar t = static_cast<btScalar>(m_settings.thickness);
   const btVector3 pad{t, t, t};
   const btScalar since_tick = static_cast<btScalar>(c.time - m_tick_start);
@@ -249,9 +315,23 @@ void BulletCollisions::place_objects(const CollisionContext& c) {
                                             since_tick + static_cast<btScalar>(c.dt), m_frame[o]);
       }
     }
-    object->getCollisionShape()->getAabb(m_frame[o], m_aabb_min[o], m_aabb_max[o]);
+    const btCollisionShape* shape = object->getCollisionShape();
+    shape->getAabb(m_frame[o], m_aabb_min[o], m_aabb_max[o]);
+    btVector3 lo, hi;
+    shape->getAabb(m_frame_n[o], lo, hi);  // swept: where it was at t^n too
+    m_aabb_min[o].setMin(lo);
+    m_aabb_max[o].setMax(hi);
     m_aabb_min[o] -= pad;
     m_aabb_max[o] += pad;
+    // crossed()'s spacing: half the shape's thinnest extent or half the thickness, whichever is less
+    // (a plane has no far side to reach; concave shapes no inside).
+    m_spacing[o] = 0.0;
+    if ((shape->isConvex() || shape->isCompound()) && shape->getShapeType() != STATIC_PLANE_PROXYTYPE) {
+      shape->getAabb(btTransform::getIdentity(), lo, hi);
+      const btVector3 extent = hi - lo;
+      const double thinnest = static_cast<double>(extent[extent.minAxis()]);
+      m_spacing[o] = 0.5 * std::min(thinnest, m_settings.thickness);
+    }
   }
   // Refit the tree's leaves that moved (Bullet reuses the nodes it frees: no allocation once it has its size);
   // rebuild it when the world's objects are not the ones indexed.
