@@ -142,7 +142,12 @@ SolveResult ConjugateGradients::solve(LinearOperator& op, const GeneralizedVecto
   const auto rms_met = [&] {
     return rms_tolerance > 0.0 && op.mass_norm_squared(m_r) <= rms_tolerance * rms_tolerance;
   };
-  while (result.residual > tolerance && !rms_met()) {
+  bool stopped_on_rms = false;
+  while (result.residual > tolerance) {
+    if (rms_met()) {
+      stopped_on_rms = true;
+      break;
+    }
     if (result.iterations >= max_iterations) {
       result.converged = false;
       break;
@@ -174,7 +179,7 @@ SolveResult ConjugateGradients::solve(LinearOperator& op, const GeneralizedVecto
   // answer's, for translation-invariant forces): a uniform translation of sum(r) / M gives it back,
   // so a loose solve still moves the centre of mass exactly. It is no larger than the RMS bound
   // (Cauchy-Schwarz: |sum r| <= sqrt(r^T M^-1 r) sqrt(M)).
-  if (rms_tolerance > 0.0 && result.residual > tolerance) {
+  if (stopped_on_rms) {
     op.net_translation(m_r, m_q);
     op.project(m_q);
     axpy(1.0, m_q, y);

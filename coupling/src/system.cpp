@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <exception>
 
 namespace sinew {
 
@@ -729,12 +730,17 @@ StepStats System::advance_awake(double frame_dt) {
   // (|gravity| before a first frame): what a falling, swinging or spun scene changes by, and nearly
   // nothing in one settling to rest, whose solves then tighten. Measured again at this frame's end.
   const double acceleration = m_frame_acceleration >= 0.0 ? m_frame_acceleration : m_settings.gravity.norm();
+  // (Not after a frame that threw: its state is the frame's start again.)
   struct MeasureAcceleration {
     System& system;
     Vectors3 v_start;
     Vectors3 body_v_start;
     double frame_dt;
-    ~MeasureAcceleration() { system.m_frame_acceleration = system.rms_acceleration(v_start, body_v_start, frame_dt); }
+    int exceptions = std::uncaught_exceptions();
+    ~MeasureAcceleration() {
+      if (std::uncaught_exceptions() > exceptions) return;
+      system.m_frame_acceleration = system.rms_acceleration(v_start, body_v_start, frame_dt);
+    }
   } measure{*this, m_particles.v, m_bodies.v, frame_dt};
   // The scale is at least sleep_speed, the speed below which the scene counts as at rest: a scene at
   // rest has no acceleration, but its velocities only need to stay well below that. A solve error

@@ -209,8 +209,9 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
         n = n_n;
         d = d_n + n_n.dot(x.col(i) - c.x_n->col(i));
       }
-    } else if (d < phi && m_spacing[o] > 0.0) {
-      // Outside at the end: it may still have passed through a thin or fast body within the step.
+    } else if (d >= 0.0 && m_spacing[o] > 0.0) {
+      // Outside at the end: it may still have passed through a thin or fast body within the step
+      // (whatever the objects before it found: a particle resting on a table is still swept by a blade).
       double d_c;
       Vec3 n_c;
       if (crossed(o, c.x_n->col(i), x.col(i), d_c, n_c)) {
@@ -225,6 +226,22 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
     }
   }
   return hit;
+}
+
+// The smallest extent of a shape's own box, or of its thinnest child's for a compound (a tray of thin
+// walls is as thin as a wall, however large its box).
+static double thinnest_extent(const btCollisionShape* shape) {
+  if (shape->isCompound()) {
+    const auto* compound = static_cast<const btCompoundShape*>(shape);
+    double thinnest = kInfinity;
+    for (int i = 0; i < compound->getNumChildShapes(); ++i)
+      thinnest = std::min(thinnest, thinnest_extent(compound->getChildShape(i)));
+    return thinnest;
+  }
+  btVector3 lo, hi;
+  shape->getAabb(btTransform::getIdentity(), lo, hi);
+  const btVector3 extent = hi - lo;
+  return static_cast<double>(extent[extent.minAxis()]);
 }
 
 // Continuous test against one object: the particle's straight path x0 -> x1 and the object's path
@@ -254,25 +271,33 @@ bool BulletCollisions::crossed(int o, const Vec3& x0, const Vec3& x1, double& ph
   };
   const auto point = [&](double s) { return Vec3((1.0 - s) * x0 + s * x1); };
   const int samples = std::min(kMaxSweepSamples, static_cast<int>(std::ceil(length / spacing)));
-  double outside = 0.0;
+  double outside = 0.0, d_out = d;  // the last sample found outside, with its distance and normal
+  Vec3 n_out = n;
   for (int j = 1; j < samples; ++j) {  // the end itself is the caller's test
     const double s = double(j) / samples;
     if (!signed_distance(shape, pose(s), point(s), thickness, d, n)) continue;
     if (d >= 0.0) {
       outside = s;
+      d_out = d;
+      n_out = n;
       continue;
     }
     double inside = s;
     for (int k = 0; k < 10; ++k) {  // the entry to 1/1024 of a sample
       const double mid = 0.5 * (outside + inside);
-      if (signed_distance(shape, pose(mid), point(mid), thickness, d, n) && d < 0.0) inside = mid;
-      else outside = mid;
+      if (!signed_distance(shape, pose(mid), point(mid), thickness, d, n)) break;  // keep what is known
+      if (d < 0.0) {
+        inside = mid;
+      } else {
+        outside = mid;
+        d_out = d;
+        n_out = n;
+      }
     }
-    const btTransform at = pose(outside);
-    if (!signed_distance(shape, at, point(outside), thickness, d, n)) return false;
     // The surface point under the entry, and its normal, in the object's frame, then at its end pose.
-    const btVector3 local_surface = at.invXform(to_bullet(point(outside) - d * n));
-    const btVector3 local_normal = at.getBasis().transpose() * to_bullet(n);
+    const btTransform at = pose(outside);
+    const btVector3 local_surface = at.invXform(to_bullet(point(outside) - d_out * n_out));
+    const btVector3 local_normal = at.getBasis().transpose() * to_bullet(n_out);
     normal = to_eigen(f1.getBasis() * local_normal);
     phi = normal.dot(x1 - to_eigen(f1 * local_surface));
     return true;
@@ -326,12 +351,8 @@ void BulletCollisions::place_objects(const CollisionContext& c) {
     // crossed()'s spacing: half the shape's thinnest extent or half the thickness, whichever is less
     // (a plane has no far side to reach; concave shapes no inside).
     m_spacing[o] = 0.0;
-    if ((shape->isConvex() || shape->isCompound()) && shape->getShapeType() != STATIC_PLANE_PROXYTYPE) {
-      shape->getAabb(btTransform::getIdentity(), lo, hi);
-      const btVector3 extent = hi - lo;
-      const double thinnest = static_cast<double>(extent[extent.minAxis()]);
-      m_spacing[o] = 0.5 * std::min(thinnest, m_settings.thickness);
-    }
+    if ((shape->isConvex() || shape->isCompound()) && shape->getShapeType() != STATIC_PLANE_PROXYTYPE)
+      m_spacing[o] = 0.5 * std::min(thinnest_extent(shape), m_settings.thickness);
   }
   // Refit the tree's leaves that moved (Bullet reuses the nodes it frees: no allocation once it has its size);
   // rebuild it when the world's objects are not the ones indexed.

@@ -336,7 +336,8 @@ class System {
   ///    velocity error) at StepSettings::relative_tolerance of a substep's velocity change a dt, a the
   ///    last frame's RMS acceleration, or of sleep_speed where larger (explicit frames, second-order
   ///    accurate, at kExplicitToleranceFactor of that), unless cg_tolerance is met first;
-  ///  - implicit_elasticity set by the user: as set, in substeps bounded by the turn the same way.
+  ///  - implicit_elasticity set by the user: as set (its solves at cg_tolerance), in substeps bounded
+  ///    by the turn the same way.
   ///
   /// Sleeping (StepSettings::sleep): after a frame that leaves the scene at rest for sleep_time, the
   /// system falls asleep (velocities of dynamic rows and bodies set to zero, the state recorded); an

@@ -36,9 +36,9 @@ struct CollisionSettings {
 /// The Bullet world's collision objects as a collision source of step 3: collides free and soft-bound
 /// particles with every object whose filter admits them (CollisionGeometry::collides with the
 /// object's broadphase group and mask), in the world's object order (deterministic), found through a
-/// dynamic AABB tree (Bullet's btDbvt) of the objects' boxes where the step puts them: each particle
-/// meets only the objects whose box holds it, so the cost follows the contacts, not particles times
-/// objects. It projects
+/// dynamic AABB tree (Bullet's btDbvt) of the objects' boxes swept over the step: each particle's path
+/// meets only the objects whose swept box it crosses, so the cost follows the contacts, not particles
+/// times objects. It projects
 /// penetrating particles out to the thickness, removes their approaching normal velocity relative to
 /// the surface with Coulomb friction on the tangential part, and hands step 4 a velocity constraint
 /// against prescribed (static, kinematic) surfaces. A dynamic body takes the opposite impulse: through
@@ -104,9 +104,10 @@ class BulletCollisions final : public CollisionSource {
   /// Whether particle i, outside object o at t^n (x0), passed through it on its way to x1 while the
   /// object moved from m_frame_n to m_frame: the path in the object's frame sampled at no more than
   /// m_spacing[o] apart (at most kMaxSweepSamples), the entry found by bisection. On a crossing, phi
-  /// and normal are the end position's distance and normal against the surface point it entered
-  /// through, carried to the object's end pose (negative: the projection puts the particle back on
-  /// the side it came from). Convex shapes and compounds of them; a concave shape has no inside.
+  /// and normal are the end position's distance and normal against the plane through the surface
+  /// point it entered by, carried to the object's end pose (negative: the projection along the normal
+  /// puts the particle back on the side it came from, keeping its motion along the surface). Convex shapes and
+  /// compounds of them; a concave shape has no inside.
   bool crossed(int o, const Vec3& x0, const Vec3& x1, double& phi, Vec3& normal) const;
   /// Fills m_frame_n and m_frame (object o at t^n and at the step's prediction) and the AABBs, and
   /// brings the tree up to date (refitted leaves; rebuilt when the world's objects changed).
