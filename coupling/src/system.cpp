@@ -548,11 +548,21 @@ int System::turn_substeps(double frame_dt, double energy) {
   return std::max(1, static_cast<int>(count));
 }
 
-double System::rms_acceleration(const Vectors3& v_start, const Vectors3& body_v_start, double frame_dt) const {
+namespace {
+// The particles whose momentum and energy the diagnostics count: free ones, and soft-spring ones
+// (whose targets are bound) where asked.
+bool counts_for_momentum(ParticleKind kind, bool include_soft) {
+  return kind == ParticleKind::free || (include_soft && kind == ParticleKind::soft_spring);
+}
+}  // namespace
+
+double System::rms_acceleration(double frame_dt) const {
+  const Vectors3& v_start = m_frame_v_start;
+  const Vectors3& body_v_start = m_frame_body_v_start;
   if (v_start.cols() != m_particles.size() || body_v_start.cols() != m_bodies.size()) return 0.0;
   double sum = 0.0, mass = 0.0;
   for (Index i = 0; i < m_particles.size(); ++i)
-    if (m_particles.kind[i] == ParticleKind::free || m_particles.kind[i] == ParticleKind::soft_spring) {
+    if (counts_for_momentum(m_particles.kind[i], true)) {
       sum += m_particles.mass[i] * (m_particles.v.col(i) - v_start.col(i)).squaredNorm();
       mass += m_particles.mass[i];
     }
@@ -714,7 +724,15 @@ StepStats System::advance_awake(double frame_dt) {
          " s, more than max_substeps = ", m_step_settings.max_substeps);
   };
   const double limit = stable_dt();  // as set
-  const int as_set = substeps_for(frame_dt, limit);
+  int as_set = substeps_for(frame_dt, limit);
+  if (m_step_settings.automatic && as_set > 0 && limit < kInfinity) {
+    // Explicit elasticity whirled by a fast-turning body it is bound to: substeps that turn that
+    // body at most kMaxExplicitTurn (System::kMaxExplicitTurn says why).
+    double spin = 0.0;
+    for (Index k = 0; k < m_hard.rigid_count(); ++k) spin = std::max(spin, m_bodies.w.col(m_hard.rigid_body(k)).norm());
+    const double turn = std::ceil(frame_dt * spin / kMaxExplicitTurn);
+    as_set = turn > m_step_settings.max_substeps ? 0 : std::max(as_set, static_cast<int>(turn));
+  }
   const bool cheap_explicit = !m_step_settings.implicit_elasticity && as_set > 0 && as_set <= kCheapExplicitSubsteps;
   if (!m_step_settings.automatic) {
     if (as_set == 0) too_many(limit);
@@ -731,17 +749,17 @@ StepStats System::advance_awake(double frame_dt) {
   // nothing in one settling to rest, whose solves then tighten. Measured again at this frame's end.
   const double acceleration = m_frame_acceleration >= 0.0 ? m_frame_acceleration : m_settings.gravity.norm();
   // (Not after a frame that threw: its state is the frame's start again.)
+  m_frame_v_start = m_particles.v;  // same size frame to frame: no allocation
+  m_frame_body_v_start = m_bodies.v;
   struct MeasureAcceleration {
     System& system;
-    Vectors3 v_start;
-    Vectors3 body_v_start;
     double frame_dt;
     int exceptions = std::uncaught_exceptions();
     ~MeasureAcceleration() {
       if (std::uncaught_exceptions() > exceptions) return;
-      system.m_frame_acceleration = system.rms_acceleration(v_start, body_v_start, frame_dt);
+      system.m_frame_acceleration = system.rms_acceleration(frame_dt);
     }
-  } measure{*this, m_particles.v, m_bodies.v, frame_dt};
+  } measure{*this, frame_dt};
   // The scale is at least sleep_speed, the speed below which the scene counts as at rest: a scene at
   // rest has no acceleration, but its velocities only need to stay well below that. A solve error
   // must not keep it awake either: at most a tenth of sleep_speed.
@@ -788,22 +806,30 @@ StepStats System::advance_awake(double frame_dt) {
     }
   }
   // Costs in CG iterations (a CG product visits the elements as a force evaluation does): a substep's
-  // own work is kSubstepCost of them, plus its CG iterations, from the counts last seen (a guess of a few tens of
-  // iterations for an implicit step never tried). A switch needs a clear gain (hysteresis), so a
-  // frame on the edge does not alternate.
-  const double explicit_cost = as_set == 0 ? kInfinity : as_set * (kSubstepCost + m_explicit_iterations);
-  const double implicit_cost =
-      implicit == 0 ? kInfinity
-                    : implicit * (kSubstepCost + (m_implicit_iterations > 0.0 ? m_implicit_iterations : 30.0));
+  // own work is kSubstepCost of them, plus its CG iterations, from the counts last seen. Before any
+  // count, the first frame guesses: none for explicit, kImplicitIterationsGuess for implicit. Once
+  // explicit has a count, an implicit step never run is tried where it takes fewer substeps (a guess
+  // that favoured explicit would never be replaced by a count), and again after kRetryImplicitFrames
+  // explicit frames (a count from one hard frame goes stale). A switch needs a clear gain
+  // (hysteresis), so a frame on the edge does not alternate.
+  const bool explicit_counted = m_explicit_iterations >= 0.0;
+  const bool implicit_counted = m_implicit_iterations >= 0.0;
+  const bool try_implicit = explicit_counted && (!implicit_counted || m_explicit_frames >= kRetryImplicitFrames);
+  const double explicit_cost = as_set == 0 ? kInfinity : as_set * (kSubstepCost + std::max(0.0, m_explicit_iterations));
+  const double implicit_iterations =
+      try_implicit ? 0.0 : (implicit_counted ? m_implicit_iterations : kImplicitIterationsGuess);
+  const double implicit_cost = implicit == 0 ? kInfinity : implicit * (kSubstepCost + implicit_iterations);
   const double hysteresis = 1.25;
-  const bool go_implicit =
-      (m_chose_implicit ? implicit_cost < hysteresis * explicit_cost : hysteresis * implicit_cost < explicit_cost);
+  const bool go_implicit = try_implicit       ? implicit_cost < explicit_cost
+                           : m_chose_implicit ? implicit_cost < hysteresis * explicit_cost
+                                              : hysteresis * implicit_cost < explicit_cost;
   const auto iterations = [](const StepStats& s) {
     return double(s.cg_iterations_step1 + s.cg_iterations_step4) / std::max(1, s.substeps);
   };
   if (!go_implicit) {
     if (as_set == 0) too_many(limit);
     m_chose_implicit = false;
+    ++m_explicit_frames;
     loosen(as_set, kExplicitToleranceFactor);
     const StepStats stats = run_substeps(frame_dt, as_set);
     m_explicit_iterations = iterations(stats);
@@ -830,18 +856,13 @@ StepStats System::advance_awake(double frame_dt) {
     m_forces[k]->offer_definite_differentials(own == 0 || own > implicit);
   }
   m_chose_implicit = true;
+  m_explicit_frames = 0;
   const StepStats stats = run_substeps(frame_dt, implicit);
   m_implicit_iterations = iterations(stats);
   return stats;
 }
 
 // ---- diagnostics -------------------------------------------------------------------------------
-
-namespace {
-bool counts_for_momentum(ParticleKind kind, bool include_soft) {
-  return kind == ParticleKind::free || (include_soft && kind == ParticleKind::soft_spring);
-}
-}  // namespace
 
 Vec3 System::linear_momentum(bool include_soft) const {
   require_finalized("momentum and energy");

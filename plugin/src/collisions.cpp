@@ -312,17 +312,32 @@ bool BulletCollisions::crossed(int o, const Vec3& x0, const Vec3& x1, double& ph
 void BulletCollisions::place_objects(const CollisionContext& c) {
   const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
   const int count = objects.size();
+  // The tree is rebuilt when the world's objects are not the ones indexed; otherwise its leaves that
+  // moved are refitted (Bullet reuses the nodes it frees: no allocation once it has its size).
+  bool same = m_indexed.size() == static_cast<std::size_t>(count);
+  for (int o = 0; same && o < count; ++o) same = m_indexed[static_cast<std::size_t>(o)] == objects[o];
   m_frame_n.resize(static_cast<std::size_t>(count));
   m_frame.resize(static_cast<std::size_t>(count));
   m_aabb_min.resize(static_cast<std::size_t>(count));
   m_aabb_max.resize(static_cast<std::size_t>(count));
   m_spacing.resize(static_cast<std::size_t>(count));
+  m_placed_shape.resize(static_cast<std::size_t>(count));
+  m_placed_scaling.resize(static_cast<std::size_t>(count));
   const btScalar t = static_cast<btScalar>(m_settings.thickness);
   const btVector3 pad{t, t, t};
   const btScalar since_tick = static_cast<btScalar>(c.time - m_tick_start);
   for (int o = 0; o < count; ++o) {
+    const auto k = static_cast<std::size_t>(o);
     const btCollisionObject* object = objects[o];
     const btTransform& pose = object->getWorldTransform();
+    const btCollisionShape* shape = object->getCollisionShape();
+    // A static object placed before with this shape, scale and pose keeps its box and spacing (the
+    // ground and the walls of a scene: most of its objects).
+    if (same && object->isStaticObject() && m_placed_shape[k] == shape &&
+        m_placed_scaling[k] == shape->getLocalScaling() && m_frame[k] == pose && m_frame_n[k] == pose)
+      continue;
+    m_placed_shape[k] = shape;
+    m_placed_scaling[k] = shape->getLocalScaling();
     m_frame_n[o] = m_frame[o] = pose;
     const btRigidBody* rigid = btRigidBody::upcast(object);
     if (m_bullet_frame && rigid && m_rigid_particles) {
@@ -340,24 +355,32 @@ void BulletCollisions::place_objects(const CollisionContext& c) {
                                             since_tick + static_cast<btScalar>(c.dt), m_frame[o]);
       }
     }
-    const btCollisionShape* shape = object->getCollisionShape();
     shape->getAabb(m_frame[o], m_aabb_min[o], m_aabb_max[o]);
     btVector3 lo, hi;
     shape->getAabb(m_frame_n[o], lo, hi);  // swept: where it was at t^n too
     m_aabb_min[o].setMin(lo);
     m_aabb_max[o].setMax(hi);
-    m_aabb_min[o] -= pad;
-    m_aabb_max[o] += pad;
+    // The box of both poses holds the straight path between them; a turn by theta (crossed() follows
+    // the shortest one) bulges a point at distance r from the frame's origin out of it by at most
+    // the arc's sagitta r (1 - cos(theta / 2)).
+    btVector3 sagitta = pad;
+    const btScalar turn = m_frame_n[o].getRotation().angleShortestPath(m_frame[o].getRotation());
+    if (turn > btScalar(0)) {
+      btVector3 centre;
+      btScalar radius;
+      shape->getBoundingSphere(centre, radius);
+      const btScalar r = centre.length() + radius;
+      const btScalar bulge = r * (btScalar(1) - btCos(btScalar(0.5) * turn));
+      if (std::isfinite(bulge)) sagitta += btVector3(bulge, bulge, bulge);
+    }
+    m_aabb_min[o] -= sagitta;
+    m_aabb_max[o] += sagitta;
     // crossed()'s spacing: half the shape's thinnest extent or half the thickness, whichever is less
     // (a plane has no far side to reach; concave shapes no inside).
     m_spacing[o] = 0.0;
     if ((shape->isConvex() || shape->isCompound()) && shape->getShapeType() != STATIC_PLANE_PROXYTYPE)
       m_spacing[o] = 0.5 * std::min(thinnest_extent(shape), m_settings.thickness);
   }
-  // Refit the tree's leaves that moved (Bullet reuses the nodes it frees: no allocation once it has its size);
-  // rebuild it when the world's objects are not the ones indexed.
-  bool same = m_indexed.size() == static_cast<std::size_t>(count);
-  for (int o = 0; same && o < count; ++o) same = m_indexed[static_cast<std::size_t>(o)] == objects[o];
   if (!same) {
     m_tree.clear();
     m_indexed.assign(static_cast<std::size_t>(count), nullptr);

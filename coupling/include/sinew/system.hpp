@@ -328,10 +328,12 @@ class System {
   ///    the turn of the elements (StepSettings::turn_work_per_implicit_step); a force that offers a
   ///    definite differential only when asked (bending) stays explicit where that multiplies the
   ///    substep count by at most kKeepExplicitFactor (the count is raised to its own); a force joins
-  ///    the solves (offers its definite differential) only when its own stable step is shorter than
   ///    the substep taken; when its cost is lower: each scheme's
   ///    cost per substep is kSubstepCost plus its CG iterations, counted from the last frames
-  ///    that used it (deterministic: counts, not clocks);
+  ///    that used it (deterministic: counts, not clocks); once explicit has a count, an implicit
+  ///    scheme never run, or not run for kRetryImplicitFrames frames, is tried where it takes fewer
+  ///    substeps, so its count is measured, not guessed or stale; explicit frames take enough substeps that no body
+  ///    turns more than kMaxExplicitTurn in one;
   ///  - the solves of a frame it chose stop (StepSettings::cg_rms_tolerance, a bound on the RMS
   ///    velocity error) at StepSettings::relative_tolerance of a substep's velocity change a dt, a the
   ///    last frame's RMS acceleration, or of sleep_speed where larger (explicit frames, second-order
@@ -373,6 +375,18 @@ class System {
   /// error hides would show there (sinew-schemes: at 1e-2 the net's error doubled, at 1e-4 it is the
   /// reference's own).
   static constexpr double kExplicitToleranceFactor = 1e-2;
+  /// advance()'s explicit frames take substeps short enough that no body with particles hard-bound
+  /// to it turns more than this [rad] in one: a particle whirled by a body turning at w oscillates
+  /// at about w about its orbit, and explicit elasticity holds such a mode only while w dt < 2 (a
+  /// cloth hard-bound to a 2 kg box spun to 3000 rad/s by a stretched tie grew its energy 1.45
+  /// times a frame at w dt = 2.8).
+  static constexpr double kMaxExplicitTurn = 1.0;
+  /// advance() runs an implicit frame again after this many explicit frames where it takes fewer
+  /// substeps, so the implicit CG count the cost model compares follows the scene (a count from one
+  /// hard frame, a teleport's, would otherwise keep the scheme explicit for good).
+  static constexpr int kRetryImplicitFrames = 30;
+  /// advance()'s guess of an implicit substep's CG iterations on a first frame, before any count.
+  static constexpr double kImplicitIterationsGuess = 30.0;
   /// advance()'s cost model counts a substep's own work (force evaluations, collisions, the solves'
   /// set-up: right-hand sides, preconditioner blocks) as this many CG iterations (sinew-schemes: at 1,
   /// once loose solves made explicit substeps cheap in iterations, the hello scene chose 13 explicit
@@ -446,14 +460,21 @@ class System {
   std::vector<double> m_force_stable_dt;  // Force::stable_dt per force at these masses (stable_dt())
   // advance() under StepSettings::automatic: CG iterations per substep last seen with explicit and
   // with implicit elasticity (the cost model), and whether the last frame chose implicit.
-  double m_explicit_iterations = 0.0;
-  double m_implicit_iterations = 0.0;
+  // A negative count: that scheme has not run yet (once explicit has run, an implicit frame is tried
+  // where it takes fewer substeps, so its cost is counted rather than guessed).
+  double m_explicit_iterations = -1.0;
+  double m_implicit_iterations = -1.0;
   bool m_chose_implicit = false;
-  // The last frame's RMS acceleration (rms_acceleration()), which sets the next frame's tolerance.
+  int m_explicit_frames = 0;  // explicit frames since the last implicit one
+  // The last frame's RMS acceleration (rms_acceleration()), which sets the next frame's tolerance,
+  // and the velocities at the frame's start it is measured from (kept to reuse their storage).
   double m_frame_acceleration = -1.0;  // -1: no frame yet
-  /// The mass-weighted RMS velocity change of the free and soft-spring particles and the dynamic
-  /// bodies since v_start and body_v_start, over frame_dt (0 where undefined).
-  double rms_acceleration(const Vectors3& v_start, const Vectors3& body_v_start, double frame_dt) const;
+  Vectors3 m_frame_v_start;
+  Vectors3 m_frame_body_v_start;
+  /// The mass-weighted RMS velocity change of the particles and bodies that carry momentum
+  /// (free and soft-spring particles, dynamic bodies) since m_frame_v_start and
+  /// m_frame_body_v_start, over frame_dt (0 where undefined).
+  double rms_acceleration(double frame_dt) const;
   /// The substep count advance() runs frame_dt in, for the stable step `limit` (0 where the count
   /// would exceed StepSettings::max_substeps: advance() then reports it).
   int substeps_for(double frame_dt, double limit) const;

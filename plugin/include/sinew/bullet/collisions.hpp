@@ -109,8 +109,9 @@ class BulletCollisions final : public CollisionSource {
   /// puts the particle back on the side it came from, keeping its motion along the surface). Convex shapes and
   /// compounds of them; a concave shape has no inside.
   bool crossed(int o, const Vec3& x0, const Vec3& x1, double& phi, Vec3& normal) const;
-  /// Fills m_frame_n and m_frame (object o at t^n and at the step's prediction) and the AABBs, and
-  /// brings the tree up to date (refitted leaves; rebuilt when the world's objects changed).
+  /// Fills m_frame_n and m_frame (object o at t^n and at the step's prediction) and the AABBs (swept
+  /// and padded; a static object's kept while its pose, shape and scale are), and brings the tree up
+  /// to date (refitted leaves; rebuilt when the world's objects changed).
   void place_objects(const CollisionContext& c);
   BulletCollisions(const BulletCollisions&) = delete;  // the tree owns its nodes
   BulletCollisions& operator=(const BulletCollisions&) = delete;
@@ -121,8 +122,10 @@ class BulletCollisions final : public CollisionSource {
   std::vector<btTransform> m_frame_n, m_frame;
   CollisionSettings m_settings;
   const std::unordered_map<const btCollisionObject*, Index>* m_rigid_particles;
-  std::vector<btVector3> m_aabb_min, m_aabb_max;    // swept: the boxes at both poses, padded
-  std::vector<double> m_spacing;                    // crossed()'s sample spacing per object, 0: not swept
+  std::vector<btVector3> m_aabb_min, m_aabb_max;        // swept: the boxes at both poses, padded
+  std::vector<double> m_spacing;                        // crossed()'s sample spacing per object, 0: not swept
+  std::vector<const btCollisionShape*> m_placed_shape;  // the shape and scale each box was made for
+  std::vector<btVector3> m_placed_scaling;
   btDbvt m_tree;                                    // the objects' padded boxes, leaf data: object index
   std::vector<btDbvtNode*> m_leaves;                // per object
   std::vector<const btCollisionObject*> m_indexed;  // the objects the leaves stand for, in world order
