@@ -7,6 +7,7 @@
 #include "sinew/forces/dihedral_bending.hpp"
 #include "sinew/forces/edge_springs.hpp"
 #include "sinew/forces/triangle_membrane.hpp"
+#include "sinew/self_collisions.hpp"
 
 #include <btBulletDynamicsCommon.h>
 
@@ -181,6 +182,12 @@ Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m
     for (const auto& entry : g_registry)
       if (entry.first == world) fail("bullet coupling: this world already has a coupling attached");
     g_registry.emplace_back(world, this);
+  }
+  if (settings.self_collisions) {
+    SelfCollisionSettings self;
+    self.thickness = settings.self_thickness;
+    self.friction = settings.friction;
+    m_system.add_collision_source(std::make_unique<SelfCollisions>(self));
   }
   if (settings.collisions) {
     auto collisions = std::make_unique<BulletCollisions>(

@@ -80,6 +80,11 @@ struct CouplingSettings {
   /// coupled). Friction holds a contact that sticks in the step's solves, and one that slides at the
   /// step's end. Off: Bullet resolves them alone, after the step.
   bool body_contacts = true;
+  /// Contact between the deformables and within each (sinew::SelfCollisions, before Bullet's shapes):
+  /// cloth on cloth, a cloth folding onto itself. Off by default: it costs a pass over every
+  /// surface triangle and edge each step.
+  bool self_collisions = false;
+  double self_thickness = 0.005;  ///< [m] the surfaces keep this distance from each other
 };
 
 class BulletCollisions;
