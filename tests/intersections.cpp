@@ -8,7 +8,7 @@
 #include <algorithm>
 #include <limits>
 
-namespace sinew::testing {
+namespace sinew::intersections {
 namespace {
 
 using BVH = fcl::BVHModel<fcl::OBBRSSd>;
@@ -84,4 +84,4 @@ std::vector<std::pair<Index, Index>> intersecting_pairs_brute_force(const std::v
   return found;
 }
 
-}  // namespace sinew::testing
+}  // namespace sinew::intersections

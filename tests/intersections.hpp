@@ -9,7 +9,7 @@
 #include <utility>
 #include <vector>
 
-namespace sinew::testing {
+namespace sinew::intersections {
 
 /// Counts the pairs of triangles of one surface that intersect and share no vertex (neighbours touch
 /// along their shared edge or corner by construction). The surface's triangles are fixed at
@@ -38,4 +38,4 @@ class SurfaceIntersections {
 std::vector<std::pair<Index, Index>> intersecting_pairs_brute_force(const std::vector<std::array<Index, 3>>& triangles,
                                                                     const Vectors3& x);
 
-}  // namespace sinew::testing
+}  // namespace sinew::intersections

@@ -1949,7 +1949,7 @@ TEST(BulletCoupling, SelfCollisionsKeepADrapedClothFromCrossingItself) {
     c.origin = Vec3(-0.4, 0.6, -0.4);
     c.down = Vec3(0.0, 0.1, 1.0).normalized();
     const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
-    testing::SurfaceIntersections checker(cloth.triangles, s.particles().x);
+    intersections::SurfaceIntersections checker(cloth.triangles, s.particles().x);
     std::size_t worst = 0;
     for (int frame = 0; frame < 60; ++frame) {
       for (int tick = 0; tick < 4; ++tick) {

@@ -14,8 +14,8 @@
 namespace sinew {
 namespace {
 
-using testing::intersecting_pairs_brute_force;
-using testing::SurfaceIntersections;
+using intersections::intersecting_pairs_brute_force;
+using intersections::SurfaceIntersections;
 
 // Two squares of two triangles each: A in the plane z = 0 over [-1, 1]^2, split along y = x
 // (triangle 0 below it, 1 above); B in the plane x = 0 over y in [-0.5, 0.7], z in [-1, 1], split

@@ -67,7 +67,7 @@ TEST(SelfCollisions, AClothDroppedOnAnotherStaysOnIt) {
       s.system.add_collision_source(std::make_unique<SelfCollisions>(settings));
     }
     s.system.add_collision_source(ground());
-    testing::SurfaceIntersections checker(s.triangles, s.system.particles().x);
+    intersections::SurfaceIntersections checker(s.triangles, s.system.particles().x);
     std::size_t worst = 0;
     double lowest = kInfinity;
     for (int tick = 0; tick < 120; ++tick) {
@@ -100,7 +100,7 @@ TEST(SelfCollisions, TwoClothsFlyingIntoEachOtherKeepTheirMomentum) {
   auto source = std::make_unique<SelfCollisions>(settings);
   const SelfCollisions& contact = *source;
   s.system.add_collision_source(std::move(source));
-  testing::SurfaceIntersections checker(s.triangles, s.system.particles().x);
+  intersections::SurfaceIntersections checker(s.triangles, s.system.particles().x);
   s.system.finalize();
   const Vec3 p0 = s.system.linear_momentum();
   int touched = 0;
@@ -132,7 +132,7 @@ TEST(SelfCollisions, AClothCollapsingOnTheGroundFoldsWithoutCrossingItself) {
       system.add_collision_source(std::make_unique<SelfCollisions>(settings));
     }
     system.add_collision_source(ground());
-    testing::SurfaceIntersections checker(cloth.triangles, system.particles().x);
+    intersections::SurfaceIntersections checker(cloth.triangles, system.particles().x);
     std::size_t worst = 0;
     for (int tick = 0; tick < 240; ++tick) {
       system.advance(1.0 / 240);

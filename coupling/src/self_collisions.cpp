@@ -122,28 +122,44 @@ bool SelfCollisions::respond(CollisionContext& c, const std::array<Index, 4>& po
   return true;
 }
 
-void SelfCollisions::bin_triangles(const CollisionContext& c) {
+void SelfCollisions::bin(const CollisionContext& c) {
   const Vectors3& x = *c.x;
   const auto& triangles = c.geometry->triangles;
+  const auto& segments = c.geometry->segments;
   const double pad = m_settings.thickness;
-  // Cells as large as the largest padded triangle, so a triangle spans at most 2 x 2 x 2 of them.
+  // Padded boxes; cells as large as the largest padded triangle, so a box spans at most 2 x 2 x 2.
+  m_triangle_box.resize(triangles.size());
+  m_segment_box.resize(segments.size());
   m_cell = 0.0;
-  for (const auto& t : triangles) {
-    Eigen::AlignedBox3d box;
-    for (const Index i : t) box.extend(Vec3(x.col(i)));
-    m_cell = std::max(m_cell, box.sizes().maxCoeff() + 2.0 * pad);
-  }
-  m_grid.clear();  // (cells a moving cloth left would otherwise accumulate)
-  if (!(m_cell > 0.0) || !std::isfinite(m_cell)) return;
   for (std::size_t k = 0; k < triangles.size(); ++k) {
     Eigen::AlignedBox3d box;
     for (const Index i : triangles[k]) box.extend(Vec3(x.col(i)));
-    const Vec3 lo = (box.min().array() - pad) / m_cell, hi = (box.max().array() + pad) / m_cell;
+    box.min().array() -= pad;
+    box.max().array() += pad;
+    m_triangle_box[k] = box;
+    m_cell = std::max(m_cell, box.sizes().maxCoeff());
+  }
+  for (std::size_t k = 0; k < segments.size(); ++k) {
+    Eigen::AlignedBox3d box;
+    box.extend(Vec3(x.col(segments[k][0])));
+    box.extend(Vec3(x.col(segments[k][1])));
+    box.min().array() -= 0.5 * pad;  // two boxes grown by half the thickness meet within it
+    box.max().array() += 0.5 * pad;
+    m_segment_box[k] = box;
+  }
+  m_triangle_grid.clear();  // (cells a moving cloth left would otherwise accumulate)
+  m_segment_grid.clear();
+  if (!(m_cell > 0.0) || !std::isfinite(m_cell)) return;
+  const auto insert = [&](std::unordered_map<long long, std::vector<Index>>& grid, const Eigen::AlignedBox3d& box,
+                          Index item) {
+    const Vec3 lo = box.min() / m_cell, hi = box.max() / m_cell;
     for (long long i = std::llround(std::floor(lo.x())); i <= std::llround(std::floor(hi.x())); ++i)
       for (long long j = std::llround(std::floor(lo.y())); j <= std::llround(std::floor(hi.y())); ++j)
         for (long long l = std::llround(std::floor(lo.z())); l <= std::llround(std::floor(hi.z())); ++l)
-          m_grid[cell_key(i, j, l)].push_back(static_cast<Index>(k));
-  }
+          grid[cell_key(i, j, l)].push_back(item);
+  };
+  for (std::size_t k = 0; k < triangles.size(); ++k) insert(m_triangle_grid, m_triangle_box[k], static_cast<Index>(k));
+  for (std::size_t k = 0; k < segments.size(); ++k) insert(m_segment_grid, m_segment_box[k], static_cast<Index>(k));
 }
 
 void SelfCollisions::process(CollisionContext& c) {
@@ -155,26 +171,31 @@ void SelfCollisions::process(CollisionContext& c) {
   const Vectors3& x_n = *c.x_n;
   Vectors3& x = *c.x;
   const double h = m_settings.thickness;
-  // The surfaces' vertices, once each, in index order; and per particle the triangles it is a corner of.
-  std::vector<Index> vertices;
-  for (const auto& t : triangles) vertices.insert(vertices.end(), t.begin(), t.end());
-  std::sort(vertices.begin(), vertices.end());
-  vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
+  // A pair counts as still to resolve while it needs a push of more than this (a resting contact
+  // left at the thickness by the last pass, to round-off, does not).
+  const double settled = 1e-3 * h;
+  // The surfaces' vertices, once each, in index order.
+  m_vertices.clear();
+  for (const auto& t : triangles) m_vertices.insert(m_vertices.end(), t.begin(), t.end());
+  std::sort(m_vertices.begin(), m_vertices.end());
+  m_vertices.erase(std::unique(m_vertices.begin(), m_vertices.end()), m_vertices.end());
   const auto corner_of = [&](Index i, const std::array<Index, 3>& t) { return i == t[0] || i == t[1] || i == t[2]; };
+  m_seen.assign(segments.size(), -1);
   for (int pass = 0; pass < m_settings.passes; ++pass) {
     ++m_passes_run;
     int found = 0;
-    bin_triangles(c);
+    bin(c);
     if (!(m_cell > 0.0)) return;
     // Vertex against triangle.
-    for (const Index i : vertices) {
+    for (const Index i : m_vertices) {
       const Vec3 p = x.col(i);
       const auto cell = (p / m_cell).array().floor();
-      const auto it = m_grid.find(cell_key(std::llround(cell.x()), std::llround(cell.y()), std::llround(cell.z())));
-      if (it == m_grid.end()) continue;
+      const auto it =
+          m_triangle_grid.find(cell_key(std::llround(cell.x()), std::llround(cell.y()), std::llround(cell.z())));
+      if (it == m_triangle_grid.end()) continue;
       for (const Index k : it->second) {
         const auto& t = triangles[static_cast<std::size_t>(k)];
-        if (corner_of(i, t)) continue;
+        if (corner_of(i, t) || !m_triangle_box[static_cast<std::size_t>(k)].contains(p)) continue;
         const Vec3 a = x.col(t[0]), b = x.col(t[1]), cc = x.col(t[2]);
         const std::array<double, 3> w = closest_on_triangle(p, a, b, cc);
         const Vec3 q = w[0] * a + w[1] * b + w[2] * cc;
@@ -191,62 +212,51 @@ void SelfCollisions::process(CollisionContext& c) {
         if (side < 0.0) n = -n;
         const double d = (p - q).dot(n);
         if (d >= h) continue;
-        ++found;
+        if (h - d > settled) ++found;
         respond(c, {i, t[0], t[1], t[2]}, {1.0, -w[0], -w[1], -w[2]}, n, h - d);
       }
     }
-    // Edge against edge: each pair once, edges sharing no point, closest points inside both.
+    // Edge against edge: each pair once (the later edge found from the earlier), edges sharing no
+    // point, closest points inside both.
     for (std::size_t e = 0; e < segments.size(); ++e) {
       const auto& s0 = segments[e];
-      Eigen::AlignedBox3d box;
-      box.extend(Vec3(x.col(s0[0])));
-      box.extend(Vec3(x.col(s0[1])));
+      const Eigen::AlignedBox3d& box = m_segment_box[e];
       const Vec3 lo = box.min() / m_cell, hi = box.max() / m_cell;
-      m_candidates.clear();
-      for (long long i = std::llround(std::floor(lo.x())); i <= std::llround(std::floor(hi.x())); ++i)
-        for (long long j = std::llround(std::floor(lo.y())); j <= std::llround(std::floor(hi.y())); ++j)
-          for (long long l = std::llround(std::floor(lo.z())); l <= std::llround(std::floor(hi.z())); ++l) {
-            const auto it = m_grid.find(cell_key(i, j, l));
-            if (it != m_grid.end()) m_candidates.insert(m_candidates.end(), it->second.begin(), it->second.end());
+      for (long long ci = std::llround(std::floor(lo.x())); ci <= std::llround(std::floor(hi.x())); ++ci)
+        for (long long cj = std::llround(std::floor(lo.y())); cj <= std::llround(std::floor(hi.y())); ++cj)
+          for (long long cl = std::llround(std::floor(lo.z())); cl <= std::llround(std::floor(hi.z())); ++cl) {
+            const auto it = m_segment_grid.find(cell_key(ci, cj, cl));
+            if (it == m_segment_grid.end()) continue;
+            for (const Index f : it->second) {
+              const auto fs = static_cast<std::size_t>(f);
+              if (fs <= e || m_seen[fs] == static_cast<Index>(e)) continue;
+              m_seen[fs] = static_cast<Index>(e);
+              const Index a0 = segments[fs][0], a1 = segments[fs][1];
+              if (a0 == s0[0] || a0 == s0[1] || a1 == s0[0] || a1 == s0[1]) continue;
+              if (!box.intersects(m_segment_box[fs])) continue;
+              double s, u;
+              const Vec3 p0 = x.col(s0[0]), p1 = x.col(s0[1]), q0 = x.col(a0), q1 = x.col(a1);
+              closest_on_segments(p0, p1, q0, q1, s, u);
+              if (s <= 0.0 || s >= 1.0 || u <= 0.0 || u >= 1.0) continue;  // a vertex's case
+              const Vec3 diff = (1.0 - s) * p0 + s * p1 - ((1.0 - u) * q0 + u * q1);
+              const double dist = diff.norm();
+              if (dist >= h) continue;
+              const Vec3 diff_n =
+                  (1.0 - s) * x_n.col(s0[0]) + s * x_n.col(s0[1]) - ((1.0 - u) * x_n.col(a0) + u * x_n.col(a1));
+              Vec3 n = dist > 0.0 ? Vec3(diff / dist) : diff_n.normalized();
+              if (!n.allFinite() || !(n.squaredNorm() > 0.5)) continue;
+              double d = dist;
+              if (diff_n.dot(n) < 0.0) {  // crossed within the step: back to the side of t^n
+                n = -n;
+                d = -dist;
+              }
+              if (h - d > settled) ++found;
+              respond(c, {s0[0], s0[1], a0, a1}, {1.0 - s, s, -(1.0 - u), -u}, n, h - d);
+            }
           }
-      // The candidate triangles' edges after e in the segment order (each pair once), sharing no point.
-      m_edges.clear();
-      for (const Index k : m_candidates) {
-        const auto& t = triangles[static_cast<std::size_t>(k)];
-        for (std::size_t corner = 0; corner < 3; ++corner) {
-          const std::array<Index, 2> edge{std::min(t[corner], t[(corner + 1) % 3]),
-                                          std::max(t[corner], t[(corner + 1) % 3])};
-          const auto at = std::lower_bound(segments.begin(), segments.end(), edge);
-          if (at == segments.end() || *at != edge) continue;
-          const auto f = static_cast<std::size_t>(at - segments.begin());
-          if (f <= e || edge[0] == s0[0] || edge[0] == s0[1] || edge[1] == s0[0] || edge[1] == s0[1]) continue;
-          m_edges.push_back(static_cast<Index>(f));
-        }
-      }
-      std::sort(m_edges.begin(), m_edges.end());
-      m_edges.erase(std::unique(m_edges.begin(), m_edges.end()), m_edges.end());
-      for (const Index f : m_edges) {
-        const Index a0 = segments[static_cast<std::size_t>(f)][0], a1 = segments[static_cast<std::size_t>(f)][1];
-        double s, u;
-        const Vec3 p0 = x.col(s0[0]), p1 = x.col(s0[1]), q0 = x.col(a0), q1 = x.col(a1);
-        closest_on_segments(p0, p1, q0, q1, s, u);
-        if (s <= 0.0 || s >= 1.0 || u <= 0.0 || u >= 1.0) continue;  // a vertex's case
-        const Vec3 diff = (1.0 - s) * p0 + s * p1 - ((1.0 - u) * q0 + u * q1);
-        const double dist = diff.norm();
-        if (dist >= h) continue;
-        const Vec3 diff_n =
-            (1.0 - s) * x_n.col(s0[0]) + s * x_n.col(s0[1]) - ((1.0 - u) * x_n.col(a0) + u * x_n.col(a1));
-        Vec3 n = dist > 0.0 ? Vec3(diff / dist) : diff_n.normalized();
-        if (!n.allFinite() || !(n.squaredNorm() > 0.5)) continue;
-        double d = dist;
-        if (diff_n.dot(n) < 0.0) {  // crossed within the step: back to the side of t^n
-          n = -n;
-          d = -dist;
-        }
-        ++found;
-        respond(c, {s0[0], s0[1], a0, a1}, {1.0 - s, s, -(1.0 - u), -u}, n, h - d);
-      }
     }
+    // m_seen marks by edge index: a new pass starts with every mark below e again, so clear them.
+    std::fill(m_seen.begin(), m_seen.end(), -1);
     if (pass == 0) m_contacts = found;
     if (found == 0) break;
   }

@@ -183,17 +183,19 @@ Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m
       if (entry.first == world) fail("bullet coupling: this world already has a coupling attached");
     g_registry.emplace_back(world, this);
   }
-  if (settings.self_collisions) {
-    SelfCollisionSettings self;
-    self.thickness = settings.self_thickness;
-    self.friction = settings.friction;
-    m_system.add_collision_source(std::make_unique<SelfCollisions>(self));
-  }
   if (settings.collisions) {
     auto collisions = std::make_unique<BulletCollisions>(
         world, CollisionSettings{settings.thickness, settings.friction}, &m_rigid_particles);
     m_collisions = collisions.get();
     m_system.add_collision_source(std::move(collisions));
+  }
+  // After Bullet's shapes: what the cloths meet there (a box lifting the lower cloth) is then seen by
+  // the contact between them in the same step.
+  if (settings.self_collisions) {
+    SelfCollisionSettings self;
+    self.thickness = settings.self_thickness;
+    self.friction = settings.friction;
+    m_system.add_collision_source(std::make_unique<SelfCollisions>(self));
   }
   m_app_pre_tick = TickCallbackAccess::pre_tick(*world);
   m_app_post_tick = TickCallbackAccess::post_tick(*world);

@@ -47,15 +47,17 @@ class SelfCollisions final : public CollisionSource {
   /// n by `gap` and stops their approach. Returns false when none of the points can move.
   bool respond(CollisionContext& c, const std::array<Index, 4>& points, const std::array<double, 4>& weights,
                const Vec3& n, double gap);
-  /// Rebuilds the hash grid of the triangles' padded boxes at positions x.
-  void bin_triangles(const CollisionContext& c);
+  /// Rebuilds the hash grids of the triangles' and edges' padded boxes at positions x.
+  void bin(const CollisionContext& c);
 
   SelfCollisionSettings m_settings;
   int m_contacts = 0;
   int m_passes_run = 0;
   double m_cell = 0.0;
-  std::unordered_map<long long, std::vector<Index>> m_grid;  // cell key -> triangles
-  std::vector<Index> m_candidates, m_edges;
+  std::unordered_map<long long, std::vector<Index>> m_triangle_grid, m_segment_grid;  // cell -> items
+  std::vector<Eigen::AlignedBox3d> m_triangle_box, m_segment_box;
+  std::vector<Index> m_vertices;
+  std::vector<Index> m_seen;  // per edge: the edge it was last tested against in this pass
 };
 
 }  // namespace sinew

@@ -80,7 +80,7 @@ struct CouplingSettings {
   /// coupled). Friction holds a contact that sticks in the step's solves, and one that slides at the
   /// step's end. Off: Bullet resolves them alone, after the step.
   bool body_contacts = true;
-  /// Contact between the deformables and within each (sinew::SelfCollisions, before Bullet's shapes):
+  /// Contact between the deformables and within each (sinew::SelfCollisions, after Bullet's shapes):
   /// cloth on cloth, a cloth folding onto itself. Off by default: it costs a pass over every
   /// surface triangle and edge each step.
   bool self_collisions = false;
