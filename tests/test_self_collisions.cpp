@@ -5,14 +5,19 @@
 // bit; bad settings are named.
 #include "cloth.hpp"
 #include "intersections.hpp"
+#include "sinew/ccd.hpp"
 #include "sinew/self_collisions.hpp"
 #include "sinew/system.hpp"
 
 #include <gtest/gtest.h>
+#include <Eigen/Eigenvalues>
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <memory>
+#include <optional>
+#include <random>
 #include <string>
 
 namespace sinew {
@@ -146,6 +151,63 @@ TEST(SelfCollisions, AClothCollapsingOnTheGroundFoldsWithoutCrossingItself) {
   }
 }
 
+// Too fast for proximity: the upper cloth flies at 20 m/s into the lower one, 8.3 cm a tick against
+// a 2 cm gap and a 5 mm thickness, so it is past the lower cloth before any pair is ever closer than
+// the thickness. The continuous test catches the pairs on their paths and the impact zones keep the
+// upper cloth on its side of the lower one (its centre above the lower cloth's plane at every tick's
+// end; the pair turns as one, the impact being off-centre), with no pair
+// intersecting and linear momentum kept to round-off; without it, the cloth passes through.
+TEST(SelfCollisions, AClothTooFastForTheThicknessDoesNotPassThroughAnother) {
+  for (const bool continuous : {true, false}) {
+    TwoCloths s(0.0, 0.02, Vec3(0, -20, 0), false);
+    SelfCollisionSettings settings;
+    settings.thickness = kThickness;
+    settings.continuous = continuous;
+    auto source = std::make_unique<SelfCollisions>(settings);
+    const SelfCollisions& contact = *source;
+    s.system.add_collision_source(std::move(source));
+    intersections::SurfaceIntersections checker(s.triangles, s.system.particles().x);
+    s.system.finalize();
+    const Vec3 p0 = s.system.linear_momentum();
+    const auto centre = [&](const scenes::ClothGrid& cloth) {
+      Vec3 sum = Vec3::Zero();
+      for (const Index i : cloth.nodes) sum += s.system.particles().x.col(i);
+      return Vec3(sum / double(cloth.nodes.size()));
+    };
+    // The lower cloth's plane normal (the least direction of its nodes' spread), kept on the side of
+    // the last tick's (the pair turns: the impact was off-centre).
+    Vec3 normal = Vec3::UnitY();
+    const auto lower_normal = [&] {
+      const Vec3 c = centre(s.lower);
+      Mat3 spread = Mat3::Zero();
+      for (const Index i : s.lower.nodes) {
+        const Vec3 r = s.system.particles().x.col(i) - c;
+        spread += r * r.transpose();
+      }
+      Vec3 n = Eigen::SelfAdjointEigenSolver<Mat3>(spread).eigenvectors().col(0);
+      return n.dot(normal) < 0.0 ? Vec3(-n) : n;
+    };
+    bool crossed = false;
+    for (int tick = 0; tick < 30; ++tick) {
+      s.system.advance(1.0 / 240);
+      normal = lower_normal();
+      crossed = crossed || (centre(s.upper) - centre(s.lower)).dot(normal) < 0.0;
+      if (!continuous) continue;
+      EXPECT_EQ(checker.count(s.system.particles().x), 0u) << "tick " << tick;
+      EXPECT_LT((s.system.linear_momentum() - p0).norm(), 1e-12 * p0.norm()) << "tick " << tick;
+    }
+    if (continuous) {
+      EXPECT_FALSE(crossed) << "the upper cloth passed the lower one";
+      EXPECT_GT(contact.totals().zone_points, 0) << "no impact zone: the test does not reach the continuous test";
+      EXPECT_EQ(contact.totals().unresolved, 0);
+      std::printf("crossings %lld, points in zones %lld, contacts %lld over %lld steps\n", contact.totals().crossings,
+                  contact.totals().zone_points, contact.totals().contacts, contact.totals().steps);
+    } else {
+      EXPECT_TRUE(crossed) << "without the continuous test the cloth must pass: the test tests nothing";
+    }
+  }
+}
+
 TEST(SelfCollisions, RunsRepeatBitForBit) {
   std::uint64_t hashes[2];
   for (auto& hash : hashes) {
@@ -156,6 +218,79 @@ TEST(SelfCollisions, RunsRepeatBitForBit) {
     hash = s.system.state_hash();
   }
   EXPECT_EQ(hashes[0], hashes[1]);
+}
+
+// The continuous tests against brute force: 4000 random moving vertex-triangle and edge-edge pairs,
+// their paths sampled at 20000 times. Where the sampled coplanarity function changes sign with the
+// crossing point well inside both elements (a certain crossing), the test must find it; where the
+// test reports a touch, the sampled distance must come within a small margin of zero somewhere.
+TEST(ContinuousTests, FindEveryCrossingABruteForceSamplingFindsAndNoFarMiss) {
+  std::mt19937 random(7);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  const auto point = [&] { return Vec3(unit(random), unit(random), unit(random)); };
+  constexpr int kSamples = 20000;
+  constexpr double kEta = 1e-6;
+  int certain = 0, reported = 0;
+  for (int trial = 0; trial < 4000; ++trial) {
+    const bool edges = trial % 2 == 1;
+    std::array<Vec3, 4> x0, x1;
+    for (std::size_t k = 0; k < 4; ++k) {
+      x0[k] = point();
+      x1[k] = x0[k] + point();
+    }
+    const auto at = [&](double t) {
+      std::array<Vec3, 4> x;
+      for (std::size_t k = 0; k < 4; ++k) x[k] = (1.0 - t) * x0[k] + t * x1[k];
+      return x;
+    };
+    // Coplanarity (the triple product) and the distance at a time.
+    const auto f = [&](const std::array<Vec3, 4>& x) { return (x[1] - x[0]).cross(x[2] - x[0]).dot(x[3] - x[0]); };
+    const auto distance = [&](const std::array<Vec3, 4>& x) {
+      if (edges) {
+        double a, b;
+        ccd::closest_on_segments(x[0], x[1], x[2], x[3], a, b);
+        return ((1.0 - a) * x[0] + a * x[1] - ((1.0 - b) * x[2] + b * x[3])).norm();
+      }
+      const auto w = ccd::closest_on_triangle(x[3], x[0], x[1], x[2]);
+      return (x[3] - (w[0] * x[0] + w[1] * x[1] + w[2] * x[2])).norm();
+    };
+    // Well inside: the closest points at least 1e-3 from every element's boundary (parameters).
+    const auto well_inside = [&](const std::array<Vec3, 4>& x) {
+      if (edges) {
+        double a, b;
+        ccd::closest_on_segments(x[0], x[1], x[2], x[3], a, b);
+        return std::min({a, 1.0 - a, b, 1.0 - b}) > 1e-3;
+      }
+      const auto w = ccd::closest_on_triangle(x[3], x[0], x[1], x[2]);
+      return std::min({w[0], w[1], w[2]}) > 1e-3;
+    };
+    bool crossing = false;
+    double nearest = kInfinity;
+    double f_prev = f(at(0.0));
+    for (int k = 1; k <= kSamples; ++k) {
+      const double t = double(k) / kSamples;
+      const auto x = at(t);
+      const double f_now = f(x);
+      nearest = std::min(nearest, distance(x));
+      if ((f_prev < 0.0) != (f_now < 0.0)) {
+        // Linear interpolation of the sign change, judged there.
+        const double tc = t - (1.0 / kSamples) * f_now / (f_now - f_prev);
+        const auto xc = at(tc);
+        if (distance(xc) < 1e-4 && well_inside(xc)) crossing = true;
+      }
+      f_prev = f_now;
+    }
+    const std::optional<double> hit =
+        edges ? ccd::edge_edge(x0[0], x0[1], x0[2], x0[3], x1[0], x1[1], x1[2], x1[3], kEta)
+              : ccd::vertex_triangle(x0[3], x0[0], x0[1], x0[2], x1[3], x1[0], x1[1], x1[2], kEta);
+    certain += crossing;
+    reported += hit.has_value();
+    if (crossing) EXPECT_TRUE(hit.has_value()) << (edges ? "edges" : "vertex-triangle") << ", trial " << trial;
+    // A reported touch: the sampled path comes within the sampling's reach of contact.
+    if (hit) EXPECT_LT(nearest, 2e-3) << (edges ? "edges" : "vertex-triangle") << ", trial " << trial;
+  }
+  EXPECT_GT(certain, 200) << "too few crossings among the random pairs to judge the tests";
+  std::printf("%d certain crossings, %d reported\n", certain, reported);
 }
 
 TEST(SelfCollisions, BadSettingsAreNamed) {

@@ -1,5 +1,7 @@
 #include "sinew/self_collisions.hpp"
 
+#include "sinew/ccd.hpp"
+
 #include "sinew/dofs.hpp"
 #include "sinew/particles.hpp"
 
@@ -7,79 +9,9 @@
 #include <cmath>
 
 namespace sinew {
-namespace {
 
-// Closest point to p on triangle (a, b, c), as barycentric weights (Ericson, Real-Time Collision
-// Detection, 5.1.5).
-std::array<double, 3> closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
-  const Vec3 ab = b - a, ac = c - a, ap = p - a;
-  const double d1 = ab.dot(ap), d2 = ac.dot(ap);
-  if (d1 <= 0.0 && d2 <= 0.0) return {1.0, 0.0, 0.0};
-  const Vec3 bp = p - b;
-  const double d3 = ab.dot(bp), d4 = ac.dot(bp);
-  if (d3 >= 0.0 && d4 <= d3) return {0.0, 1.0, 0.0};
-  const double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) {
-    const double v = d1 / (d1 - d3);
-    return {1.0 - v, v, 0.0};
-  }
-  const Vec3 cp = p - c;
-  const double d5 = ab.dot(cp), d6 = ac.dot(cp);
-  if (d6 >= 0.0 && d5 <= d6) return {0.0, 0.0, 1.0};
-  const double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) {
-    const double w = d2 / (d2 - d6);
-    return {1.0 - w, 0.0, w};
-  }
-  const double va = d3 * d6 - d5 * d4;
-  if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0) {
-    const double w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-    return {0.0, 1.0 - w, w};
-  }
-  const double denom = 1.0 / (va + vb + vc);
-  const double v = vb * denom, w = vc * denom;
-  return {1.0 - v - w, v, w};
-}
-
-// Parameters (s, t) of the closest points of segments p0 p1 and q0 q1 (Ericson 5.1.9).
-void closest_on_segments(const Vec3& p0, const Vec3& p1, const Vec3& q0, const Vec3& q1, double& s, double& t) {
-  const Vec3 d1 = p1 - p0, d2 = q1 - q0, r = p0 - q0;
-  const double a = d1.squaredNorm(), e = d2.squaredNorm(), f = d2.dot(r);
-  const double tiny = 1e-30;
-  if (a <= tiny && e <= tiny) {
-    s = t = 0.0;
-    return;
-  }
-  if (a <= tiny) {
-    s = 0.0;
-    t = std::clamp(f / e, 0.0, 1.0);
-    return;
-  }
-  const double c = d1.dot(r);
-  if (e <= tiny) {
-    t = 0.0;
-    s = std::clamp(-c / a, 0.0, 1.0);
-    return;
-  }
-  const double b = d1.dot(d2), denom = a * e - b * b;
-  s = denom > tiny ? std::clamp((b * f - c * e) / denom, 0.0, 1.0) : 0.0;
-  t = (b * s + f) / e;
-  if (t < 0.0) {
-    t = 0.0;
-    s = std::clamp(-c / a, 0.0, 1.0);
-  } else if (t > 1.0) {
-    t = 1.0;
-    s = std::clamp((b - c) / a, 0.0, 1.0);
-  }
-}
-
-long long cell_key(long long i, long long j, long long k) {
-  // 21 bits a coordinate (cells within +-1e6 of the origin), packed.
-  const long long m = (1LL << 21) - 1;
-  return ((i & m) << 42) | ((j & m) << 21) | (k & m);
-}
-
-}  // namespace
+using ccd::closest_on_segments;
+using ccd::closest_on_triangle;
 
 SelfCollisions::SelfCollisions(const SelfCollisionSettings& settings) : m_settings(settings) {
   if (!(std::isfinite(settings.thickness) && settings.thickness > 0.0))
@@ -126,40 +58,34 @@ void SelfCollisions::bin(const CollisionContext& c) {
   const Vectors3& x = *c.x;
   const auto& triangles = c.geometry->triangles;
   const auto& segments = c.geometry->segments;
-  const double pad = m_settings.thickness;
-  // Padded boxes; cells as large as the largest padded triangle, so a box spans at most 2 x 2 x 2.
+  const double pad = 2.0 * m_settings.thickness;  // the reach of the near pairs
+  // Padded boxes, binned in cells the mean size of the boxes (a stretched triangle spans more cells;
+  // a cell the size of the largest box would fill every cell with the items of many).
   m_triangle_box.resize(triangles.size());
   m_segment_box.resize(segments.size());
   m_cell = 0.0;
+  double segment_cell = 0.0;
   for (std::size_t k = 0; k < triangles.size(); ++k) {
     Eigen::AlignedBox3d box;
     for (const Index i : triangles[k]) box.extend(Vec3(x.col(i)));
     box.min().array() -= pad;
     box.max().array() += pad;
     m_triangle_box[k] = box;
-    m_cell = std::max(m_cell, box.sizes().maxCoeff());
+    m_cell += box.sizes().maxCoeff();
   }
+  if (!triangles.empty()) m_cell /= double(triangles.size());
   for (std::size_t k = 0; k < segments.size(); ++k) {
     Eigen::AlignedBox3d box;
     box.extend(Vec3(x.col(segments[k][0])));
     box.extend(Vec3(x.col(segments[k][1])));
-    box.min().array() -= 0.5 * pad;  // two boxes grown by half the thickness meet within it
+    box.min().array() -= 0.5 * pad;  // two boxes grown by half the reach meet within it
     box.max().array() += 0.5 * pad;
     m_segment_box[k] = box;
+    segment_cell += box.sizes().maxCoeff();
   }
-  m_triangle_grid.clear();  // (cells a moving cloth left would otherwise accumulate)
-  m_segment_grid.clear();
-  if (!(m_cell > 0.0) || !std::isfinite(m_cell)) return;
-  const auto insert = [&](std::unordered_map<long long, std::vector<Index>>& grid, const Eigen::AlignedBox3d& box,
-                          Index item) {
-    const Vec3 lo = box.min() / m_cell, hi = box.max() / m_cell;
-    for (long long i = std::llround(std::floor(lo.x())); i <= std::llround(std::floor(hi.x())); ++i)
-      for (long long j = std::llround(std::floor(lo.y())); j <= std::llround(std::floor(hi.y())); ++j)
-        for (long long l = std::llround(std::floor(lo.z())); l <= std::llround(std::floor(hi.z())); ++l)
-          grid[cell_key(i, j, l)].push_back(item);
-  };
-  for (std::size_t k = 0; k < triangles.size(); ++k) insert(m_triangle_grid, m_triangle_box[k], static_cast<Index>(k));
-  for (std::size_t k = 0; k < segments.size(); ++k) insert(m_segment_grid, m_segment_box[k], static_cast<Index>(k));
+  if (!segments.empty()) segment_cell /= double(segments.size());
+  m_triangle_grid.build(m_triangle_box, m_cell);
+  m_segment_grid.build(m_segment_box, segment_cell);
 }
 
 void SelfCollisions::process(CollisionContext& c) {
@@ -167,6 +93,7 @@ void SelfCollisions::process(CollisionContext& c) {
   const auto& segments = c.geometry->segments;
   m_contacts = 0;
   m_passes_run = 0;
+  m_crossings = m_zone_points = m_zone_rounds_run = m_unresolved = 0;
   if (triangles.empty()) return;
   const Vectors3& x_n = *c.x_n;
   Vectors3& x = *c.x;
@@ -180,85 +107,297 @@ void SelfCollisions::process(CollisionContext& c) {
   std::sort(m_vertices.begin(), m_vertices.end());
   m_vertices.erase(std::unique(m_vertices.begin(), m_vertices.end()), m_vertices.end());
   const auto corner_of = [&](Index i, const std::array<Index, 3>& t) { return i == t[0] || i == t[1] || i == t[2]; };
-  m_seen.assign(segments.size(), -1);
-  for (int pass = 0; pass < m_settings.passes; ++pass) {
+  // The narrow phase of one pair: responds when the pair is closer than the thickness and returns
+  // whether it is closer than twice that (a pair a later pass must look at again).
+  int found = 0;
+  const auto vertex_triangle = [&](Index i, Index k) {
+    const auto& t = triangles[static_cast<std::size_t>(k)];
+    const Vec3 p = x.col(i), a = x.col(t[0]), b = x.col(t[1]), cc = x.col(t[2]);
+    const std::array<double, 3> w = closest_on_triangle(p, a, b, cc);
+    const Vec3 q = w[0] * a + w[1] * b + w[2] * cc;
+    const double distance2 = (p - q).squaredNorm();
+    if (distance2 >= 4.0 * h * h) return false;
+    if (distance2 >= h * h) return true;
+    // The face normal, on the side the vertex was at t^n (where it lay within the plane then, the
+    // side it is on now).
+    Vec3 n = (b - a).cross(cc - a);
+    if (!(n.squaredNorm() > 0.0)) return true;
+    n.normalize();
+    const Vec3 q_n = w[0] * x_n.col(t[0]) + w[1] * x_n.col(t[1]) + w[2] * x_n.col(t[2]);
+    const Vec3 n_n = (x_n.col(t[1]) - x_n.col(t[0])).cross(x_n.col(t[2]) - x_n.col(t[0]));
+    double side = (x_n.col(i) - q_n).dot(n_n);
+    if (side == 0.0) side = (p - q).dot(n);
+    if (side < 0.0) n = -n;
+    const double d = (p - q).dot(n);
+    if (d >= h) return true;
+    if (h - d > settled) ++found;
+    respond(c, {i, t[0], t[1], t[2]}, {1.0, -w[0], -w[1], -w[2]}, n, h - d);
+    return true;
+  };
+  const auto edge_edge = [&](Index e, Index f) {
+    const auto& s0 = segments[static_cast<std::size_t>(e)];
+    const Index a0 = segments[static_cast<std::size_t>(f)][0], a1 = segments[static_cast<std::size_t>(f)][1];
+    double s, u;
+    const Vec3 p0 = x.col(s0[0]), p1 = x.col(s0[1]), q0 = x.col(a0), q1 = x.col(a1);
+    closest_on_segments(p0, p1, q0, q1, s, u);
+    const Vec3 diff = (1.0 - s) * p0 + s * p1 - ((1.0 - u) * q0 + u * q1);
+    const double dist = diff.norm();
+    if (dist >= 2.0 * h) return false;
+    if (s <= 0.0 || s >= 1.0 || u <= 0.0 || u >= 1.0) return true;  // a vertex's case, for now
+    if (dist >= h) return true;
+    const Vec3 diff_n = (1.0 - s) * x_n.col(s0[0]) + s * x_n.col(s0[1]) - ((1.0 - u) * x_n.col(a0) + u * x_n.col(a1));
+    Vec3 n = dist > 0.0 ? Vec3(diff / dist) : diff_n.normalized();
+    if (!n.allFinite() || !(n.squaredNorm() > 0.5)) return true;
+    double d = dist;
+    if (diff_n.dot(n) < 0.0) {  // crossed within the step: back to the side of t^n
+      n = -n;
+      d = -dist;
+    }
+    if (h - d > settled) ++found;
+    respond(c, {s0[0], s0[1], a0, a1}, {1.0 - s, s, -(1.0 - u), -u}, n, h - d);
+    return true;
+  };
+  // The first pass finds the pairs through the grids; the later ones revisit those it found within
+  // twice the thickness (a pair further apart than that is not brought within the thickness by the
+  // pushes of a few passes; one that is, the continuous test below still sees).
+  m_near_vertex_triangle.clear();
+  m_near_edge_edge.clear();
+  bin(c);
+  if (m_cell > 0.0) {
     ++m_passes_run;
-    int found = 0;
-    bin(c);
-    if (!(m_cell > 0.0)) return;
+    m_seen.assign(segments.size(), -1);
     // Vertex against triangle.
     for (const Index i : m_vertices) {
       const Vec3 p = x.col(i);
-      const auto cell = (p / m_cell).array().floor();
-      const auto it =
-          m_triangle_grid.find(cell_key(std::llround(cell.x()), std::llround(cell.y()), std::llround(cell.z())));
-      if (it == m_triangle_grid.end()) continue;
-      for (const Index k : it->second) {
+      m_triangle_grid.query(Eigen::AlignedBox3d(p, p), [&](Index k) {
         const auto& t = triangles[static_cast<std::size_t>(k)];
-        if (corner_of(i, t) || !m_triangle_box[static_cast<std::size_t>(k)].contains(p)) continue;
-        const Vec3 a = x.col(t[0]), b = x.col(t[1]), cc = x.col(t[2]);
-        const std::array<double, 3> w = closest_on_triangle(p, a, b, cc);
-        const Vec3 q = w[0] * a + w[1] * b + w[2] * cc;
-        if ((p - q).squaredNorm() >= h * h) continue;
-        // The face normal, on the side the vertex was at t^n (where it lay within the plane then,
-        // the side it is on now).
-        Vec3 n = (b - a).cross(cc - a);
-        if (!(n.squaredNorm() > 0.0)) continue;
-        n.normalize();
-        const Vec3 q_n = w[0] * x_n.col(t[0]) + w[1] * x_n.col(t[1]) + w[2] * x_n.col(t[2]);
-        const Vec3 n_n = (x_n.col(t[1]) - x_n.col(t[0])).cross(x_n.col(t[2]) - x_n.col(t[0]));
-        double side = (x_n.col(i) - q_n).dot(n_n);
-        if (side == 0.0) side = (p - q).dot(n);
-        if (side < 0.0) n = -n;
-        const double d = (p - q).dot(n);
-        if (d >= h) continue;
-        if (h - d > settled) ++found;
-        respond(c, {i, t[0], t[1], t[2]}, {1.0, -w[0], -w[1], -w[2]}, n, h - d);
-      }
+        if (corner_of(i, t) || !m_triangle_box[static_cast<std::size_t>(k)].contains(p)) return;
+        if (vertex_triangle(i, k)) m_near_vertex_triangle.push_back({i, k});
+      });
     }
     // Edge against edge: each pair once (the later edge found from the earlier), edges sharing no
     // point, closest points inside both.
     for (std::size_t e = 0; e < segments.size(); ++e) {
       const auto& s0 = segments[e];
       const Eigen::AlignedBox3d& box = m_segment_box[e];
-      const Vec3 lo = box.min() / m_cell, hi = box.max() / m_cell;
-      for (long long ci = std::llround(std::floor(lo.x())); ci <= std::llround(std::floor(hi.x())); ++ci)
-        for (long long cj = std::llround(std::floor(lo.y())); cj <= std::llround(std::floor(hi.y())); ++cj)
-          for (long long cl = std::llround(std::floor(lo.z())); cl <= std::llround(std::floor(hi.z())); ++cl) {
-            const auto it = m_segment_grid.find(cell_key(ci, cj, cl));
-            if (it == m_segment_grid.end()) continue;
-            for (const Index f : it->second) {
-              const auto fs = static_cast<std::size_t>(f);
-              if (fs <= e || m_seen[fs] == static_cast<Index>(e)) continue;
-              m_seen[fs] = static_cast<Index>(e);
-              const Index a0 = segments[fs][0], a1 = segments[fs][1];
-              if (a0 == s0[0] || a0 == s0[1] || a1 == s0[0] || a1 == s0[1]) continue;
-              if (!box.intersects(m_segment_box[fs])) continue;
-              double s, u;
-              const Vec3 p0 = x.col(s0[0]), p1 = x.col(s0[1]), q0 = x.col(a0), q1 = x.col(a1);
-              closest_on_segments(p0, p1, q0, q1, s, u);
-              if (s <= 0.0 || s >= 1.0 || u <= 0.0 || u >= 1.0) continue;  // a vertex's case
-              const Vec3 diff = (1.0 - s) * p0 + s * p1 - ((1.0 - u) * q0 + u * q1);
-              const double dist = diff.norm();
-              if (dist >= h) continue;
-              const Vec3 diff_n =
-                  (1.0 - s) * x_n.col(s0[0]) + s * x_n.col(s0[1]) - ((1.0 - u) * x_n.col(a0) + u * x_n.col(a1));
-              Vec3 n = dist > 0.0 ? Vec3(diff / dist) : diff_n.normalized();
-              if (!n.allFinite() || !(n.squaredNorm() > 0.5)) continue;
-              double d = dist;
-              if (diff_n.dot(n) < 0.0) {  // crossed within the step: back to the side of t^n
-                n = -n;
-                d = -dist;
-              }
-              if (h - d > settled) ++found;
-              respond(c, {s0[0], s0[1], a0, a1}, {1.0 - s, s, -(1.0 - u), -u}, n, h - d);
-            }
-          }
+      m_segment_grid.query(box, [&](Index f) {
+        const auto fs = static_cast<std::size_t>(f);
+        if (fs <= e || m_seen[fs] == static_cast<Index>(e)) return;
+        m_seen[fs] = static_cast<Index>(e);
+        const Index a0 = segments[fs][0], a1 = segments[fs][1];
+        if (a0 == s0[0] || a0 == s0[1] || a1 == s0[0] || a1 == s0[1]) return;
+        if (!box.intersects(m_segment_box[fs])) return;
+        if (edge_edge(static_cast<Index>(e), f)) m_near_edge_edge.push_back({static_cast<Index>(e), f});
+      });
     }
-    // m_seen marks by edge index: a new pass starts with every mark below e again, so clear them.
-    std::fill(m_seen.begin(), m_seen.end(), -1);
-    if (pass == 0) m_contacts = found;
-    if (found == 0) break;
+    m_contacts = found;
+    for (int pass = 1; pass < m_settings.passes && found > 0; ++pass) {
+      ++m_passes_run;
+      found = 0;
+      for (const auto& [i, k] : m_near_vertex_triangle) vertex_triangle(i, k);
+      for (const auto& [e, f] : m_near_edge_edge) edge_edge(e, f);
+    }
+  }
+  if (m_settings.continuous) resolve_crossings(c);
+  ++m_totals.steps;
+  m_totals.contacts += m_contacts;
+  m_totals.crossings += m_crossings;
+  m_totals.zone_points += m_zone_points;
+  m_totals.unresolved += m_unresolved;
+}
+
+// The continuous guarantee, after Provot's and Bridson et al.'s rigid impact zones. Every point
+// moves on a straight line from x^n to x over the step; a pair found touching on those paths
+// (ccd::vertex_triangle, ccd::edge_edge) joins its points into one zone, and each zone moves as a
+// rigid body from x^n: its centre of mass by the zone's mean displacement u_c, its points turned
+// about it by the rotation vector theta = I^-1 sum_i m_i r_i x (u_i - u_c), with r_i = x_i^n - c^n
+// and I = sum_i m_i (|r_i|^2 1 - r_i r_i^T) (a pseudo-inverse where the zone is collinear), so the
+// zone keeps the linear momentum of its displacements exactly and their angular momentum about
+// the centre. On the straight path from x^n to the rigid end, the zone's points at time t are the
+// image of x^n under the affine map (1 - t) 1 + t R, plus a translation; that map is invertible
+// while R turns by less than pi, and an invertible affine map makes no new coplanarity, so a zone
+// with no touching pair at t^n has none inside it over the step (|theta| is capped at pi / 2). Zones
+// that touch other points merge with them, round after round, until no pair touches: then no
+// triangle pair intersects at the end of the step that did not at its start. Velocities change
+// with the positions: dv = dx / dt, so the zone's relative approach is gone.
+//
+// A zone holding points the contact cannot move (kinematic or hard-bound) moves its free points
+// with their mean displacement instead (a rigid translation when they move together, as points
+// bound to one body that does not turn); where they do not move together, pairs may still touch
+// and are counted in unresolved().
+void SelfCollisions::resolve_crossings(CollisionContext& c) {
+  const Particles& p = *c.particles;
+  const auto n = static_cast<std::size_t>(p.size());
+  m_x_proposed = *c.x;
+  m_parent.assign(n, -1);
+  m_changed.assign(n, 1);  // the first round tests every pair
+  m_triangle_seen.assign(c.geometry->triangles.size(), -1);
+  for (int round = 0; round < m_settings.zone_rounds; ++round) {
+    const int found = find_crossings(c);
+    if (round == 0) m_crossings = found;
+    if (found == 0) return;
+    ++m_zone_rounds_run;
+    for (const auto& pair : m_pairs) {
+      const Index root = zone_of(pair[0]);
+      for (std::size_t k = 1; k < 4; ++k) {
+        const Index other = zone_of(pair[k]);
+        if (other != root) m_parent[static_cast<std::size_t>(other)] = root;
+      }
+    }
+    move_zones(c);
+  }
+  m_unresolved = find_crossings(c);
+}
+
+Index SelfCollisions::zone_of(Index i) {
+  auto& parent = m_parent[static_cast<std::size_t>(i)];
+  if (parent < 0 || parent == i) {
+    parent = i;
+    return i;
+  }
+  const Index root = zone_of(parent);
+  parent = root;
+  return root;
+}
+
+int SelfCollisions::find_crossings(const CollisionContext& c) {
+  const auto& triangles = c.geometry->triangles;
+  const auto& segments = c.geometry->segments;
+  const Vectors3& x_n = *c.x_n;
+  const Vectors3& x = *c.x;
+  // Pairs closer than this at a coplanarity time touch: far below the thickness, far above the
+  // round-off of a bisected root.
+  const double eta = 1e-3 * m_settings.thickness;
+  m_pairs.clear();
+  std::fill(m_triangle_seen.begin(), m_triangle_seen.end(), -1);
+  const auto swept = [&](const auto& points) {
+    Eigen::AlignedBox3d box;
+    for (const Index i : points) {
+      box.extend(Vec3(x_n.col(i)));
+      box.extend(Vec3(x.col(i)));
+    }
+    box.min().array() -= eta;
+    box.max().array() += eta;
+    return box;
+  };
+  m_swept_triangle_box.resize(triangles.size());
+  m_swept_segment_box.resize(segments.size());
+  double size = 0.0;
+  for (std::size_t k = 0; k < triangles.size(); ++k) {
+    m_swept_triangle_box[k] = swept(triangles[k]);
+    size += m_swept_triangle_box[k].sizes().maxCoeff();
+  }
+  for (std::size_t k = 0; k < segments.size(); ++k) m_swept_segment_box[k] = swept(segments[k]);
+  // Cells twice the mean swept triangle: a fast triangle spans more of them (or goes to the list
+  // every query sees).
+  const double cell = triangles.empty() ? 0.0 : 2.0 * size / double(triangles.size());
+  m_swept_triangle_grid.build(m_swept_triangle_box, cell);
+  m_swept_segment_grid.build(m_swept_segment_box, cell);
+  const auto changed = [&](Index i) { return m_changed[static_cast<std::size_t>(i)] != 0; };
+  // Vertex against triangle.
+  for (const Index i : m_vertices) {
+    const Eigen::AlignedBox3d path(x_n.col(i).cwiseMin(x.col(i)), x_n.col(i).cwiseMax(x.col(i)));
+    m_swept_triangle_grid.query(path, [&](Index k) {
+      const auto ks = static_cast<std::size_t>(k);
+      if (m_triangle_seen[ks] == i) return;
+      m_triangle_seen[ks] = i;
+      const auto& t = triangles[ks];
+      if (i == t[0] || i == t[1] || i == t[2]) return;
+      if (!(changed(i) || changed(t[0]) || changed(t[1]) || changed(t[2]))) return;
+      if (!m_swept_triangle_box[ks].intersects(path)) return;
+      if (ccd::vertex_triangle(x_n.col(i), x_n.col(t[0]), x_n.col(t[1]), x_n.col(t[2]), x.col(i), x.col(t[0]),
+                               x.col(t[1]), x.col(t[2]), eta))
+        m_pairs.push_back({i, t[0], t[1], t[2]});
+    });
+  }
+  // Edge against edge, each pair once.
+  m_seen.assign(segments.size(), -1);
+  for (std::size_t e = 0; e < segments.size(); ++e) {
+    const auto& s0 = segments[e];
+    const Eigen::AlignedBox3d& box = m_swept_segment_box[e];
+    m_swept_segment_grid.query(box, [&](Index f) {
+      const auto fs = static_cast<std::size_t>(f);
+      if (fs <= e || m_seen[fs] == static_cast<Index>(e)) return;
+      m_seen[fs] = static_cast<Index>(e);
+      const Index a0 = segments[fs][0], a1 = segments[fs][1];
+      if (a0 == s0[0] || a0 == s0[1] || a1 == s0[0] || a1 == s0[1]) return;
+      if (!(changed(s0[0]) || changed(s0[1]) || changed(a0) || changed(a1))) return;
+      if (!box.intersects(m_swept_segment_box[fs])) return;
+      if (ccd::edge_edge(x_n.col(s0[0]), x_n.col(s0[1]), x_n.col(a0), x_n.col(a1), x.col(s0[0]), x.col(s0[1]),
+                         x.col(a0), x.col(a1), eta))
+        m_pairs.push_back({s0[0], s0[1], a0, a1});
+    });
+  }
+  return static_cast<int>(m_pairs.size());
+}
+
+void SelfCollisions::move_zones(CollisionContext& c) {
+  const Particles& p = *c.particles;
+  const Vectors3& x_n = *c.x_n;
+  Vectors3& x = *c.x;
+  Vectors3& v = *c.v;
+  const auto movable = [&](Index i) { return is_dynamic(p.kind[i]) && p.mass[i] > 0.0; };
+  // Members grouped by zone, in index order within each (a deterministic order for the sums).
+  m_zone_member.clear();
+  for (Index i = 0; i < p.size(); ++i)
+    if (m_parent[static_cast<std::size_t>(i)] >= 0) m_zone_member.push_back({zone_of(i), i});
+  std::sort(m_zone_member.begin(), m_zone_member.end());
+  std::fill(m_changed.begin(), m_changed.end(), 0);
+  m_zone_points = 0;
+  for (std::size_t begin = 0; begin < m_zone_member.size();) {
+    std::size_t end = begin;
+    while (end < m_zone_member.size() && m_zone_member[end][0] == m_zone_member[begin][0]) ++end;
+    // The zone's fixed points' mean displacement, or its rigid motion.
+    Vec3 fixed_u = Vec3::Zero();
+    int fixed = 0;
+    double mass = 0.0;
+    Vec3 centre = Vec3::Zero(), u_c = Vec3::Zero();
+    for (std::size_t k = begin; k < end; ++k) {
+      const Index i = m_zone_member[k][1];
+      const Vec3 u = m_x_proposed.col(i) - x_n.col(i);
+      if (!movable(i)) {
+        fixed_u += u;
+        ++fixed;
+        continue;
+      }
+      mass += p.mass[i];
+      centre += p.mass[i] * x_n.col(i);
+      u_c += p.mass[i] * u;
+    }
+    Vec3 theta = Vec3::Zero();
+    if (fixed > 0) {
+      u_c = fixed_u / fixed;
+    } else if (mass > 0.0) {
+      centre /= mass;
+      u_c /= mass;
+      Mat3 inertia = Mat3::Zero();
+      Vec3 spin = Vec3::Zero();
+      for (std::size_t k = begin; k < end; ++k) {
+        const Index i = m_zone_member[k][1];
+        const Vec3 r = x_n.col(i) - centre;
+        inertia += p.mass[i] * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
+        spin += p.mass[i] * r.cross(Vec3(m_x_proposed.col(i) - x_n.col(i)) - u_c);
+      }
+      theta = inertia.completeOrthogonalDecomposition().solve(spin);
+      const double angle = theta.norm();
+      constexpr double kMaxTurn = 0.5 * 3.14159265358979323846;
+      if (!std::isfinite(angle)) theta.setZero();
+      else if (angle > kMaxTurn) theta *= kMaxTurn / angle;
+    }
+    const double angle = theta.norm();
+    const Mat3 R = angle > 0.0 ? Mat3(Eigen::AngleAxisd(angle, theta / angle)) : Mat3::Identity();
+    for (std::size_t k = begin; k < end; ++k) {
+      const Index i = m_zone_member[k][1];
+      if (!movable(i)) continue;
+      const Vec3 target = fixed > 0 ? Vec3(x_n.col(i) + u_c) : Vec3(centre + u_c + R * (x_n.col(i) - centre));
+      const Vec3 dx = target - x.col(i);
+      if (dx.squaredNorm() == 0.0) continue;
+      x.col(i) = target;
+      v.col(i) += dx / c.dt;
+      m_changed[static_cast<std::size_t>(i)] = 1;
+    }
+    m_zone_points += static_cast<int>(end - begin);
+    begin = end;
   }
 }
 
