@@ -285,9 +285,13 @@ TEST(ContinuousTests, FindEveryCrossingABruteForceSamplingFindsAndNoFarMiss) {
               : ccd::vertex_triangle(x0[3], x0[0], x0[1], x0[2], x1[3], x1[0], x1[1], x1[2], kEta);
     certain += crossing;
     reported += hit.has_value();
-    if (crossing) EXPECT_TRUE(hit.has_value()) << (edges ? "edges" : "vertex-triangle") << ", trial " << trial;
+    if (crossing) {
+      EXPECT_TRUE(hit.has_value()) << (edges ? "edges" : "vertex-triangle") << ", trial " << trial;
+    }
     // A reported touch: the sampled path comes within the sampling's reach of contact.
-    if (hit) EXPECT_LT(nearest, 2e-3) << (edges ? "edges" : "vertex-triangle") << ", trial " << trial;
+    if (hit) {
+      EXPECT_LT(nearest, 2e-3) << (edges ? "edges" : "vertex-triangle") << ", trial " << trial;
+    }
   }
   EXPECT_GT(certain, 200) << "too few crossings among the random pairs to judge the tests";
   std::printf("%d certain crossings, %d reported\n", certain, reported);

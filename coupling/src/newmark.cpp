@@ -95,6 +95,7 @@ StepStats Newmark::step(const StepModel& s, double dt) {
 
     t = Clock::now();
     process_collisions(s, dt);
+    for (const auto& source : s.collision_sources) stats.contact_work += source->work();
     check_finite(s, "step 3 (process collisions)");
     stats.ms.process_collisions = ms_since(t);
 

@@ -86,6 +86,7 @@ void SelfCollisions::bin(const CollisionContext& c) {
   if (!segments.empty()) segment_cell /= double(segments.size());
   m_triangle_grid.build(m_triangle_box, m_cell);
   m_segment_grid.build(m_segment_box, segment_cell);
+  m_work += double(triangles.size() + segments.size());
 }
 
 void SelfCollisions::process(CollisionContext& c) {
@@ -94,6 +95,7 @@ void SelfCollisions::process(CollisionContext& c) {
   m_contacts = 0;
   m_passes_run = 0;
   m_crossings = m_zone_points = m_zone_rounds_run = m_unresolved = 0;
+  m_work = 0.0;
   if (triangles.empty()) return;
   const Vectors3& x_n = *c.x_n;
   Vectors3& x = *c.x;
@@ -170,6 +172,7 @@ void SelfCollisions::process(CollisionContext& c) {
     for (const Index i : m_vertices) {
       const Vec3 p = x.col(i);
       m_triangle_grid.query(Eigen::AlignedBox3d(p, p), [&](Index k) {
+        ++m_work;
         const auto& t = triangles[static_cast<std::size_t>(k)];
         if (corner_of(i, t) || !m_triangle_box[static_cast<std::size_t>(k)].contains(p)) return;
         if (vertex_triangle(i, k)) m_near_vertex_triangle.push_back({i, k});
@@ -181,6 +184,7 @@ void SelfCollisions::process(CollisionContext& c) {
       const auto& s0 = segments[e];
       const Eigen::AlignedBox3d& box = m_segment_box[e];
       m_segment_grid.query(box, [&](Index f) {
+        ++m_work;
         const auto fs = static_cast<std::size_t>(f);
         if (fs <= e || m_seen[fs] == static_cast<Index>(e)) return;
         m_seen[fs] = static_cast<Index>(e);
@@ -194,6 +198,7 @@ void SelfCollisions::process(CollisionContext& c) {
     for (int pass = 1; pass < m_settings.passes && found > 0; ++pass) {
       ++m_passes_run;
       found = 0;
+      m_work += double(m_near_vertex_triangle.size() + m_near_edge_edge.size());
       for (const auto& [i, k] : m_near_vertex_triangle) vertex_triangle(i, k);
       for (const auto& [e, f] : m_near_edge_edge) edge_edge(e, f);
     }
@@ -293,11 +298,13 @@ int SelfCollisions::find_crossings(const CollisionContext& c) {
   const double cell = triangles.empty() ? 0.0 : 2.0 * size / double(triangles.size());
   m_swept_triangle_grid.build(m_swept_triangle_box, cell);
   m_swept_segment_grid.build(m_swept_segment_box, cell);
+  m_work += double(triangles.size() + segments.size());
   const auto changed = [&](Index i) { return m_changed[static_cast<std::size_t>(i)] != 0; };
   // Vertex against triangle.
   for (const Index i : m_vertices) {
     const Eigen::AlignedBox3d path(x_n.col(i).cwiseMin(x.col(i)), x_n.col(i).cwiseMax(x.col(i)));
     m_swept_triangle_grid.query(path, [&](Index k) {
+      ++m_work;
       const auto ks = static_cast<std::size_t>(k);
       if (m_triangle_seen[ks] == i) return;
       m_triangle_seen[ks] = i;
@@ -305,6 +312,7 @@ int SelfCollisions::find_crossings(const CollisionContext& c) {
       if (i == t[0] || i == t[1] || i == t[2]) return;
       if (!(changed(i) || changed(t[0]) || changed(t[1]) || changed(t[2]))) return;
       if (!m_swept_triangle_box[ks].intersects(path)) return;
+      m_work += kContinuousTestWork;
       if (ccd::vertex_triangle(x_n.col(i), x_n.col(t[0]), x_n.col(t[1]), x_n.col(t[2]), x.col(i), x.col(t[0]),
                                x.col(t[1]), x.col(t[2]), eta))
         m_pairs.push_back({i, t[0], t[1], t[2]});
@@ -316,6 +324,7 @@ int SelfCollisions::find_crossings(const CollisionContext& c) {
     const auto& s0 = segments[e];
     const Eigen::AlignedBox3d& box = m_swept_segment_box[e];
     m_swept_segment_grid.query(box, [&](Index f) {
+      ++m_work;
       const auto fs = static_cast<std::size_t>(f);
       if (fs <= e || m_seen[fs] == static_cast<Index>(e)) return;
       m_seen[fs] = static_cast<Index>(e);
@@ -323,6 +332,7 @@ int SelfCollisions::find_crossings(const CollisionContext& c) {
       if (a0 == s0[0] || a0 == s0[1] || a1 == s0[0] || a1 == s0[1]) return;
       if (!(changed(s0[0]) || changed(s0[1]) || changed(a0) || changed(a1))) return;
       if (!box.intersects(m_swept_segment_box[fs])) return;
+      m_work += kContinuousTestWork;
       if (ccd::edge_edge(x_n.col(s0[0]), x_n.col(s0[1]), x_n.col(a0), x_n.col(a1), x.col(s0[0]), x.col(s0[1]),
                          x.col(a0), x.col(a1), eta))
         m_pairs.push_back({s0[0], s0[1], a0, a1});

@@ -39,6 +39,7 @@ StepStats& StepStats::operator+=(const StepStats& o) {
   implicit_elasticity = implicit_elasticity || o.implicit_elasticity;
   mapped_impulse += o.mapped_impulse;
   asleep = asleep || o.asleep;
+  contact_work += o.contact_work;
   ms += o.ms;
   return *this;
 }
@@ -795,13 +796,17 @@ StepStats System::advance_awake(double frame_dt) {
   // substeps explicit is the cheaper (and, at the shorter step, the more accurate): the count is raised
   // to the largest own count within that factor, and those forces stay explicit. Forces whose
   // definite differential is their own (edge springs) join the solves whenever they limit the step.
+  // Where a substep's contact work (the last frame's, as CG iterations) makes substeps dear, the
+  // factor shrinks by kSubstepCost / (kSubstepCost + that work): each added substep costs it too.
+  const double keep_explicit_factor =
+      kKeepExplicitFactor * kSubstepCost / (kSubstepCost + std::max(0.0, m_contact_iterations));
   if (implicit > 0) {
     const int fewest = implicit;
     for (std::size_t k = 0; k < m_forces.size(); ++k) {
       const int own = substeps_for(frame_dt, m_force_stable_dt[k]);
       const Force& f = *m_forces[k];
       if (f.can_offer_definite_differentials() && !f.has_definite_differentials() && own > implicit &&
-          own <= kKeepExplicitFactor * fewest)
+          own <= keep_explicit_factor * fewest)
         implicit = own;  // every force whose own count is at most this stays explicit
     }
   }
@@ -815,16 +820,22 @@ StepStats System::advance_awake(double frame_dt) {
   const bool explicit_counted = m_explicit_iterations >= 0.0;
   const bool implicit_counted = m_implicit_iterations >= 0.0;
   const bool try_implicit = explicit_counted && (!implicit_counted || m_explicit_frames >= kRetryImplicitFrames);
-  const double explicit_cost = as_set == 0 ? kInfinity : as_set * (kSubstepCost + std::max(0.0, m_explicit_iterations));
+  // A scheme not yet counted is guessed to do the last frame's contact work too (contact work
+  // follows the scene, not the scheme).
+  const double explicit_iterations = explicit_counted ? m_explicit_iterations : m_contact_iterations;
+  const double explicit_cost = as_set == 0 ? kInfinity : as_set * (kSubstepCost + explicit_iterations);
   const double implicit_iterations =
-      try_implicit ? 0.0 : (implicit_counted ? m_implicit_iterations : kImplicitIterationsGuess);
+      try_implicit ? 0.0 : (implicit_counted ? m_implicit_iterations : kImplicitIterationsGuess + m_contact_iterations);
   const double implicit_cost = implicit == 0 ? kInfinity : implicit * (kSubstepCost + implicit_iterations);
   const double hysteresis = 1.25;
   const bool go_implicit = try_implicit       ? implicit_cost < explicit_cost
                            : m_chose_implicit ? implicit_cost < hysteresis * explicit_cost
                                               : hysteresis * implicit_cost < explicit_cost;
-  const auto iterations = [](const StepStats& s) {
-    return double(s.cg_iterations_step1 + s.cg_iterations_step4) / std::max(1, s.substeps);
+  // A substep's CG iterations, its contact work counted as iterations.
+  const double work_per_iteration = kCgWorkPerParticle * double(std::max<Index>(1, m_particles.size()));
+  const auto iterations = [&](const StepStats& s) {
+    m_contact_iterations = s.contact_work / work_per_iteration / std::max(1, s.substeps);
+    return double(s.cg_iterations_step1 + s.cg_iterations_step4) / std::max(1, s.substeps) + m_contact_iterations;
   };
   if (!go_implicit) {
     if (as_set == 0) too_many(limit);

@@ -1,9 +1,12 @@
 #include "runner.hpp"
 
+#include "intersections.hpp"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <memory>
 
 namespace sinew::demos {
 
@@ -34,6 +37,19 @@ int run_headless(const Program& program, const Options& o, const RunHooks& hooks
     if (hooks.before) hooks.before(*scene);
     scenes::SceneMeasures worst, now;
     double wall_ms = 0.0, energy_start = 0.0;
+    // Scenes with contact between deformables (a "self contact" source): an independent checker
+    // (FCL, intersections.hpp) counts intersecting triangle pairs at the end of every frame, outside
+    // the timed part; the line reports the worst frame.
+    std::unique_ptr<intersections::SurfaceIntersections> checker;
+    std::size_t worst_intersections = 0;
+    int worst_intersections_frame = 0;
+    if (System* system = scene->deformable_system()) {
+      bool self_contact = false;
+      for (const auto& source : system->collision_sources()) self_contact |= source->name() == "self contact";
+      if (self_contact && !system->collision_geometry().triangles.empty())
+        checker = std::make_unique<intersections::SurfaceIntersections>(system->collision_geometry().triangles,
+                                                                        system->particles().x);
+    }
     for (int f = 1; f <= o.frames; ++f) {
       const auto start = std::chrono::steady_clock::now();
       scene->advance(t.frame_dt, t.substeps);
@@ -44,6 +60,13 @@ int run_headless(const Program& program, const Options& o, const RunHooks& hooks
       worst.hard_binding_drift = std::max(worst.hard_binding_drift, now.hard_binding_drift);
       worst.binding_spring_stretch = std::max(worst.binding_spring_stretch, now.binding_spring_stretch);
       worst.deepest_penetration = std::max(worst.deepest_penetration, now.deepest_penetration);
+      if (checker) {
+        const std::size_t pairs = checker->count(scene->deformable_system()->particles().x);
+        if (pairs > worst_intersections) {
+          worst_intersections = pairs;
+          worst_intersections_frame = f;
+        }
+      }
       if (hooks.after_frame) hooks.after_frame(*scene, f);
     }
     if (hooks.after) hooks.after(*scene, o.frames, t.frame_dt);
@@ -54,6 +77,12 @@ int run_headless(const Program& program, const Options& o, const RunHooks& hooks
                     double(s->substeps) / o.frames,
                     double(s->cg_iterations_step1 + s->cg_iterations_step4) / s->substeps);
       stats = text;
+    }
+    if (checker) {
+      char text[120];
+      std::snprintf(text, sizeof text, "\"intersecting_pairs_max\": %zu, \"intersecting_pairs_frame\": %d, ",
+                    worst_intersections, worst_intersections_frame);
+      stats += text;
     }
     std::printf(
         "{\"scene\": \"%s\", \"particles\": %lld, \"rigid_bodies\": %lld, \"frames\": %d, \"frame_dt\": %.6g, "

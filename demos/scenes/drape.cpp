@@ -80,7 +80,7 @@ class Stack final : public BulletScene {
 SINEW_REGISTER_SCENE(bullet_scene<Drape>(
     {.name = "drape",
      .description = "a cloth falls onto a block turning on a table, folds onto itself and slides off (self contact)",
-     .gallery_frame = 120}));
+     .gallery_frame = 90}));
 SINEW_REGISTER_SCENE(
     bullet_scene<Stack>({.name = "stack",
                          .description = "three cloths dropped onto each other and onto a box (contact between cloths)",

@@ -101,6 +101,14 @@ class CollisionSource {
   /// Used in messages and timings.
   virtual std::string_view name() const = 0;
   virtual void process(CollisionContext& context) = 0;
+  /// The work of the last process() call, counted in items visited (a box binned, a candidate pair
+  /// looked at; a continuous test counts kContinuousTestWork). System::advance weighs a substep's
+  /// contact work with its solves when it chooses the substep count: a count, not a clock, so the
+  /// choice is the same run to run. Zero for sources that do not count.
+  virtual double work() const { return 0.0; }
+  /// What one continuous (swept) pair test counts in work(): a cubic's roots, bisected, against a
+  /// box test and a closest-point query.
+  static constexpr double kContinuousTestWork = 8.0;
 };
 
 /// A collision source from a function (tests, applications with their own contact code).

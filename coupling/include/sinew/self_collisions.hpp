@@ -66,6 +66,7 @@ class SelfCollisions final : public CollisionSource {
     long long steps = 0, contacts = 0, crossings = 0, zone_points = 0, unresolved = 0;
   };
   const Totals& totals() const { return m_totals; }
+  double work() const override { return m_work; }
 
  private:
   /// Pushes the pair of `count` points with `weights` (summing to zero: +1 side, -1 side) apart along
@@ -94,6 +95,7 @@ class SelfCollisions final : public CollisionSource {
   Totals m_totals;
   std::vector<std::array<Index, 2>> m_near_vertex_triangle, m_near_edge_edge;  // the first pass's near pairs
   int m_crossings = 0, m_zone_points = 0, m_zone_rounds_run = 0, m_unresolved = 0;
+  double m_work = 0.0;  // CollisionSource::work() of the last call
   ccd::BoxGrid m_swept_triangle_grid, m_swept_segment_grid;
   std::vector<Eigen::AlignedBox3d> m_swept_triangle_box, m_swept_segment_box;
   std::vector<std::array<Index, 4>> m_pairs;        // the points of each touching pair

@@ -46,6 +46,8 @@ struct StepStats {
   Vec3 mapped_impulse = Vec3::Zero();
   /// The system slept through this call (System::advance): no step, no force, no solve.
   bool asleep = false;
+  /// The collision sources' work in step 3 (CollisionSource::work), summed over substeps.
+  double contact_work = 0;
   PhaseTimes ms;
 
   StepStats& operator+=(const StepStats& o);
