@@ -3,6 +3,7 @@
 #include "sinew/bullet/convert.hpp"
 
 #include <BulletCollision/NarrowPhaseCollision/btGjkEpa2.h>
+#include <LinearMath/btConvexHullComputer.h>
 
 #include <algorithm>
 #include <cmath>
@@ -406,6 +407,7 @@ void BulletCollisions::process(CollisionContext& c) {
   m_deepest = 0.0;
   m_contacts = 0;
   m_dynamic_contacts.clear();
+  m_particle_object.assign(static_cast<std::size_t>(c.particles->size()), -1);
   Vectors3& x = *c.x;
   Vectors3& v = *c.v;
   const Particles& particles = *c.particles;
@@ -417,6 +419,7 @@ void BulletCollisions::process(CollisionContext& c) {
     Vec3 normal;
     const int hit = closest_object(c, i, phi, normal);
     if (hit < 0 || phi >= thickness) continue;
+    m_particle_object[static_cast<std::size_t>(i)] = hit;
     ++m_contacts;
     m_deepest = std::max(m_deepest, thickness - phi);
     const btCollisionObject* object = objects[hit];
@@ -462,6 +465,307 @@ void BulletCollisions::process(CollisionContext& c) {
       continue;
     }
     push_pending(rigid, arm, j);
+  }
+  if (m_settings.features) process_features(c);
+}
+
+// ---- corners and edges of polyhedral bodies against the surfaces' faces and edges --------------
+//
+// Particles alone cannot see a box edge between two cloth nodes: the face between them sags over it
+// (a 45 degree ridge under a cloth of 20 cm cells poked 9 cm through). Each corner of a polyhedral
+// body is tested against the surface triangles near its path, and each edge against the surface
+// edges near its path, as the self-contact source tests a cloth against itself (Bridson et al.):
+// a corner within the thickness of a face it lies over, or an edge within it of a surface edge, is a
+// contact on the side the pair was on at t^n (so one that crossed within the step is put back), and
+// the surface points of the contact (the triangle's corners by the barycentric weights of the
+// nearest point, or the edge's two ends) are pushed out along the normal with their approach
+// relative to the body stopped (Coulomb friction on the slip), the body taking the opposite impulse.
+
+const BulletCollisions::Features& BulletCollisions::features_of(const btPolyhedralConvexShape* shape) const {
+  const auto key = std::pair<const btCollisionShape*, btVector3>(shape, shape->getLocalScaling());
+  for (const auto& [k, f] : m_features)
+    if (k.first == key.first && k.second == key.second) return f;
+  Features f;
+  std::vector<double> coords;
+  for (int i = 0; i < shape->getNumVertices(); ++i) {
+    btVector3 v;
+    shape->getVertex(i, v);
+    coords.insert(coords.end(), {double(v.x()), double(v.y()), double(v.z())});
+  }
+  // A box's vertices are its corners; any other polyhedral shape is rounded by its margin, which
+  // Bullet's contacts (and sinew's particle tests) include.
+  f.margin = shape->getShapeType() == BOX_SHAPE_PROXYTYPE ? 0.0 : double(shape->getMargin());
+  btConvexHullComputer hull;
+  if (!coords.empty()) {
+    hull.compute(coords.data(), 3 * int(sizeof(double)), shape->getNumVertices(), 0, 0);
+    for (int i = 0; i < hull.vertices.size(); ++i) f.corners.push_back(to_eigen(hull.vertices[i]));
+    for (int e = 0; e < hull.edges.size(); ++e) {
+      const int a = hull.edges[e].getSourceVertex(), b = hull.edges[e].getTargetVertex();
+      if (a < b) f.edges.push_back({a, b});
+    }
+  }
+  m_features.push_back({key, std::move(f)});
+  return m_features.back().second;
+}
+
+void BulletCollisions::respond_to_body(CollisionContext& c, int o, const std::array<Index, 3>& points,
+                                       const std::array<double, 3>& weights, const Vec3& at, const Vec3& n,
+                                       double gap) {
+  const Particles& p = *c.particles;
+  Vectors3& x = *c.x;
+  Vectors3& v = *c.v;
+  std::array<double, 3> inverse_mass{};
+  double S = 0.0;
+  for (std::size_t k = 0; k < 3; ++k) {
+    const Index i = points[k];
+    if (i < 0 || weights[k] == 0.0) continue;
+    const ParticleKind kind = p.kind[i];
+    const bool movable =
+        (kind == ParticleKind::free || kind == ParticleKind::soft_spring || kind == ParticleKind::soft_synchronized) &&
+        p.mass[i] > 0.0;
+    inverse_mass[k] = movable ? 1.0 / p.mass[i] : 0.0;
+    S += weights[k] * weights[k] * inverse_mass[k];
+  }
+  if (!(S > 0.0)) return;  // nothing here the contact can move
+  ++m_contacts;
+  m_deepest = std::max(m_deepest, gap);
+  const btCollisionObject* object = m_world->getCollisionObjectArray()[o];
+  btRigidBody* rigid = const_cast<btRigidBody*>(btRigidBody::upcast(object));
+  const bool prescribed = !rigid || rigid->isStaticOrKinematicObject();
+  Index particle_body = -1;
+  if (!prescribed && m_rigid_particles) {
+    const auto found = m_rigid_particles->find(object);
+    if (found != m_rigid_particles->end()) particle_body = found->second;
+  }
+  // The body's surface velocity at the contact, as the particle pass takes it.
+  Vec3 v_body = Vec3::Zero();
+  const btVector3 arm = to_bullet(at) - m_frame[static_cast<std::size_t>(o)].getOrigin();
+  if (particle_body >= 0)
+    v_body = c.bodies->v.col(particle_body) +
+             Vec3(c.bodies->w.col(particle_body)).cross(at - c.bodies->x.col(particle_body));
+  else if (rigid) v_body = to_eigen(rigid->getVelocityInLocalPoint(arm));
+  for (std::size_t k = 0; k < 3; ++k)
+    if (inverse_mass[k] > 0.0) x.col(points[k]) += (weights[k] * inverse_mass[k] / S * gap) * n;
+  Vec3 v_surface = Vec3::Zero();
+  for (std::size_t k = 0; k < 3; ++k)
+    if (points[k] >= 0) v_surface += weights[k] * v.col(points[k]);
+  const Vec3 v_rel = v_surface - v_body;
+  const double vn = v_rel.dot(n);
+  Vec3 j = Vec3::Zero();  // the surface's momentum change
+  if (vn < 0.0) {
+    Vec3 change = -vn * n;
+    const Vec3 slip = v_rel - vn * n;
+    const double slip_speed = slip.norm();
+    if (slip_speed > 0.0) change -= std::min(1.0, m_settings.friction * (-vn) / slip_speed) * slip;
+    for (std::size_t k = 0; k < 3; ++k)
+      if (inverse_mass[k] > 0.0) {
+        const Vec3 dv = (weights[k] * inverse_mass[k] / S) * change;
+        v.col(points[k]) += dv;
+        j += p.mass[points[k]] * dv;
+      }
+  }
+  if (prescribed) {
+    // Held in step 4 too, on the stencil of the points that have unknowns.
+    CollisionConstraint constraint;
+    constraint.size = 0;
+    for (std::size_t k = 0; k < 3; ++k)
+      if (inverse_mass[k] > 0.0 && is_dynamic(p.kind[points[k]])) {
+        constraint.particles[static_cast<std::size_t>(constraint.size)] = points[k];
+        constraint.weights[static_cast<std::size_t>(constraint.size)] = weights[k];
+        ++constraint.size;
+      }
+    if (constraint.size > 0) {
+      constraint.normal = n;
+      constraint.normal_velocity = n.dot(v_body);
+      c.add_constraint(constraint);
+    }
+    return;
+  }
+  if (j.isZero(0.0)) return;
+  if (particle_body >= 0) c.apply_body_impulse(particle_body, at, -j);
+  else push_pending(rigid, arm, j);
+}
+
+void BulletCollisions::process_features(CollisionContext& c) {
+  const auto& triangles = c.geometry->triangles;
+  const auto& segments = c.geometry->segments;
+  if (triangles.empty()) return;
+  const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
+  const Vectors3& x_n = *c.x_n;
+  const Vectors3& x = *c.x;
+  const double h = m_settings.thickness;
+  // The polyhedral objects (and compound children) near the surfaces, each with its frames at t^n
+  // and at the step's end.
+  struct Part {
+    int object;
+    const btPolyhedralConvexShape* shape;
+    btTransform frame_n, frame;
+  };
+  std::vector<Part> parts;
+  Eigen::AlignedBox3d surfaces;
+  for (const auto& t : triangles)
+    for (const Index i : t) {
+      surfaces.extend(Vec3(x.col(i)));
+      surfaces.extend(Vec3(x_n.col(i)));
+    }
+  const std::function<void(int, const btCollisionShape*, const btTransform&, const btTransform&)> gather =
+      [&](int o, const btCollisionShape* shape, const btTransform& f_n, const btTransform& f) {
+        if (shape->isCompound()) {
+          const auto* compound = static_cast<const btCompoundShape*>(shape);
+          for (int k = 0; k < compound->getNumChildShapes(); ++k)
+            gather(o, compound->getChildShape(k), f_n * compound->getChildTransform(k),
+                   f * compound->getChildTransform(k));
+        } else if (shape->isPolyhedral()) {
+          parts.push_back({o, static_cast<const btPolyhedralConvexShape*>(shape), f_n, f});
+        }
+      };
+  for (int o = 0; o < objects.size(); ++o) {
+    if (!objects[o]->hasContactResponse()) continue;
+    const auto k = static_cast<std::size_t>(o);
+    const Eigen::AlignedBox3d box(to_eigen(m_aabb_min[k]), to_eigen(m_aabb_max[k]));
+    if (!box.intersects(surfaces)) continue;
+    gather(o, objects[o]->getCollisionShape(), m_frame_n[k], m_frame[k]);
+  }
+  if (parts.empty()) return;
+  // The surfaces' triangles and edges over the step, padded by the reach of a contact.
+  double reach = h;
+  for (const Part& part : parts) reach = std::max(reach, h + features_of(part.shape).margin);
+  const auto swept = [&](const auto& points, double pad) {
+    Eigen::AlignedBox3d box;
+    for (const Index i : points) {
+      box.extend(Vec3(x_n.col(i)));
+      box.extend(Vec3(x.col(i)));
+    }
+    box.min().array() -= pad;
+    box.max().array() += pad;
+    return box;
+  };
+  m_triangle_box.resize(triangles.size());
+  m_segment_box.resize(segments.size());
+  double size = 0.0;
+  for (std::size_t k = 0; k < triangles.size(); ++k) {
+    m_triangle_box[k] = swept(triangles[k], reach);
+    size += m_triangle_box[k].sizes().maxCoeff();
+  }
+  for (std::size_t k = 0; k < segments.size(); ++k) m_segment_box[k] = swept(segments[k], reach);
+  const double cell = size / double(triangles.size());
+  m_triangle_grid.build(m_triangle_box, cell);
+  m_segment_grid.build(m_segment_box, cell);
+  const auto admits = [&](int o, Index i) {
+    const btBroadphaseProxy* proxy = objects[o]->getBroadphaseHandle();
+    if (proxy && !c.geometry->collides(i, static_cast<std::uint32_t>(proxy->m_collisionFilterGroup),
+                                       static_cast<std::uint32_t>(proxy->m_collisionFilterMask)))
+      return false;
+    if (!m_tied.empty() && m_rigid_particles) {
+      const auto found = m_rigid_particles->find(objects[o]);
+      if (found != m_rigid_particles->end() &&
+          std::binary_search(m_tied.begin(), m_tied.end(), std::pair<Index, Index>(i, found->second)))
+        return false;
+    }
+    return true;
+  };
+  // Only faces and edges whose every point the contact can move: one with a bound or kinematic point
+  // is held where its binding puts it (a cloth hard-bound along a plate's edge lies within the
+  // thickness of that edge by construction), and pushing its free points alone, by their small
+  // share of the contact point, would throw them; the particle tests see its free points.
+  const Particles& particles = *c.particles;
+  // Nor one with a point another object holds this step (the particle tests found it within the
+  // thickness of that object): pushed off this body, it would be pushed into the other (a cloth
+  // pinched between a box and the ground); the particle tests keep it out of the nearer.
+  const auto held_elsewhere = [&](Index i, int o) {
+    const int other = m_particle_object[static_cast<std::size_t>(i)];
+    return other >= 0 && other != o;
+  };
+  const auto movable = [&](Index i) {
+    const ParticleKind kind = particles.kind[i];
+    return (kind == ParticleKind::free || kind == ParticleKind::soft_spring ||
+            kind == ParticleKind::soft_synchronized) &&
+           particles.mass[i] > 0.0;
+  };
+  Index feature = 0;
+  m_seen_feature.assign(std::max(triangles.size(), segments.size()), -1);
+  for (const Part& part : parts) {
+    const Features& f = features_of(part.shape);
+    const double thickness = h + f.margin;
+    std::vector<Vec3> corner_n(f.corners.size()), corner(f.corners.size());
+    for (std::size_t k = 0; k < f.corners.size(); ++k) {
+      corner_n[k] = to_eigen(part.frame_n * to_bullet(f.corners[k]));
+      corner[k] = to_eigen(part.frame * to_bullet(f.corners[k]));
+    }
+    // Corners against faces.
+    for (std::size_t k = 0; k < f.corners.size(); ++k, ++feature) {
+      const Eigen::AlignedBox3d path(corner_n[k].cwiseMin(corner[k]), corner_n[k].cwiseMax(corner[k]));
+      m_triangle_grid.query(path, [&](Index t) {
+        const auto ts = static_cast<std::size_t>(t);
+        if (m_seen_feature[ts] == feature) return;
+        m_seen_feature[ts] = feature;
+        if (!m_triangle_box[ts].intersects(path)) return;
+        const auto& tri = triangles[ts];
+        if (!(movable(tri[0]) && movable(tri[1]) && movable(tri[2]))) return;
+        if (held_elsewhere(tri[0], part.object) || held_elsewhere(tri[1], part.object) ||
+            held_elsewhere(tri[2], part.object))
+          return;
+        if (!(admits(part.object, tri[0]) || admits(part.object, tri[1]) || admits(part.object, tri[2]))) return;
+        const Vec3 a = x.col(tri[0]), b = x.col(tri[1]), cc = x.col(tri[2]);
+        const std::array<double, 3> w = ccd::closest_on_triangle(corner[k], a, b, cc);
+        if (!(w[0] > 0.0 && w[1] > 0.0 && w[2] > 0.0)) return;  // over an edge or corner: their tests
+        Vec3 n = (b - a).cross(cc - a);
+        if (!(n.squaredNorm() > 0.0)) return;
+        n.normalize();
+        // The side of the face the body was on at t^n.
+        const Vec3 n_n = (x_n.col(tri[1]) - x_n.col(tri[0])).cross(x_n.col(tri[2]) - x_n.col(tri[0]));
+        const Vec3 q_n = w[0] * x_n.col(tri[0]) + w[1] * x_n.col(tri[1]) + w[2] * x_n.col(tri[2]);
+        double side = (q_n - corner_n[k]).dot(n_n);
+        const Vec3 q = w[0] * a + w[1] * b + w[2] * cc;
+        if (side == 0.0) side = (q - corner[k]).dot(n);
+        if (side < 0.0) n = -n;  // n: from the body towards the face
+        const double d = (q - corner[k]).dot(n);
+        if (d >= thickness) return;
+        // On the wrong side: only a face the corner passed through in the step.
+        if (d < 0.0 && !ccd::vertex_triangle(corner_n[k], x_n.col(tri[0]), x_n.col(tri[1]), x_n.col(tri[2]), corner[k],
+                                             a, b, cc, 1e-3 * thickness))
+          return;
+        respond_to_body(c, part.object, tri, w, corner[k], n, thickness - d);
+      });
+    }
+    // Edges against edges.
+    for (const auto& e : f.edges) {
+      ++feature;
+      const Vec3 p0 = corner[static_cast<std::size_t>(e[0])], p1 = corner[static_cast<std::size_t>(e[1])];
+      const Vec3 p0_n = corner_n[static_cast<std::size_t>(e[0])], p1_n = corner_n[static_cast<std::size_t>(e[1])];
+      Eigen::AlignedBox3d path(p0);
+      path.extend(p1);
+      path.extend(p0_n);
+      path.extend(p1_n);
+      m_segment_grid.query(path, [&](Index g) {
+        const auto gs = static_cast<std::size_t>(g);
+        if (m_seen_feature[gs] == feature) return;
+        m_seen_feature[gs] = feature;
+        if (!m_segment_box[gs].intersects(path)) return;
+        const auto& seg = segments[gs];
+        if (!(movable(seg[0]) && movable(seg[1]))) return;
+        if (held_elsewhere(seg[0], part.object) || held_elsewhere(seg[1], part.object)) return;
+        if (!(admits(part.object, seg[0]) || admits(part.object, seg[1]))) return;
+        double s, u;
+        const Vec3 q0 = x.col(seg[0]), q1 = x.col(seg[1]);
+        ccd::closest_on_segments(p0, p1, q0, q1, s, u);
+        if (s <= 0.0 || s >= 1.0 || u <= 0.0 || u >= 1.0) return;  // a corner's or a node's case
+        const Vec3 on_body = (1.0 - s) * p0 + s * p1;
+        const Vec3 diff = (1.0 - u) * q0 + u * q1 - on_body;
+        const Vec3 diff_n = (1.0 - u) * x_n.col(seg[0]) + u * x_n.col(seg[1]) - ((1.0 - s) * p0_n + s * p1_n);
+        const double dist = diff.norm();
+        if (dist >= thickness) return;
+        Vec3 n = dist > 0.0 ? Vec3(diff / dist) : Vec3(diff_n.normalized());
+        if (!n.allFinite()) return;
+        double d = dist;
+        if (diff_n.dot(n) < 0.0) {  // crossed within the step: back to the side of t^n
+          if (!ccd::edge_edge(p0_n, p1_n, x_n.col(seg[0]), x_n.col(seg[1]), p0, p1, q0, q1, 1e-3 * thickness)) return;
+          n = -n;
+          d = -dist;
+        }
+        respond_to_body(c, part.object, {seg[0], seg[1], -1}, {1.0 - u, u, 0.0}, on_body, n, thickness - d);
+      });
+    }
   }
 }
 

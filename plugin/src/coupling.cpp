@@ -185,7 +185,7 @@ Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m
   }
   if (settings.collisions) {
     auto collisions = std::make_unique<BulletCollisions>(
-        world, CollisionSettings{settings.thickness, settings.friction}, &m_rigid_particles);
+        world, CollisionSettings{settings.thickness, settings.friction, settings.feature_contacts}, &m_rigid_particles);
     m_collisions = collisions.get();
     m_system.add_collision_source(std::move(collisions));
   }

@@ -2,6 +2,7 @@
 // "collisions for deformables only", section 5).
 #pragma once
 
+#include "sinew/ccd.hpp"
 #include "sinew/system.hpp"
 
 #include <BulletCollision/BroadphaseCollision/btDbvt.h>
@@ -31,6 +32,10 @@ Vec3 stop_approach(const Vec3& v, const Vec3& v_body, const Vec3& n, double mu);
 struct CollisionSettings {
   double thickness = 0.01;  ///< particles keep this distance from every surface [m]
   double friction = 0.3;    ///< Coulomb coefficient between cloth and rigid surfaces
+  /// The corners and edges of polyhedral bodies (boxes, convex hulls, and such children of compounds)
+  /// against the faces and edges of the registered collision surfaces (System::add_collision_surface),
+  /// so a box edge or corner between two cloth nodes does not poke through the face between them.
+  bool features = true;
 };
 
 /// The Bullet world's collision objects as a collision source of step 3: collides free and soft-bound
@@ -113,6 +118,23 @@ class BulletCollisions final : public CollisionSource {
   /// and padded; a static object's kept while its pose, shape and scale are), and brings the tree up
   /// to date (refitted leaves; rebuilt when the world's objects changed).
   void place_objects(const CollisionContext& c);
+  /// The corners and edges of the polyhedral objects near the surfaces against the surfaces' faces
+  /// and edges (CollisionSettings::features), after the particles.
+  void process_features(CollisionContext& c);
+  /// A polyhedral shape's corners and edges in its own frame (the hull of its vertices, from Bullet's
+  /// btConvexHullComputer), and the extra reach of its rounding margin (none for a box, whose
+  /// corners are its surface); computed once per shape and scale.
+  struct Features {
+    std::vector<Vec3> corners;
+    std::vector<std::array<int, 2>> edges;
+    double margin = 0.0;
+  };
+  const Features& features_of(const btPolyhedralConvexShape* shape) const;
+  /// Pushes the surface points `points` (weights summing to 1, -1 for none) of a contact with object o
+  /// at world point `at` along n (from the body towards the surface) by `gap`, stops their approach
+  /// relative to the body's surface there with friction, and gives the body the opposite impulse.
+  void respond_to_body(CollisionContext& c, int o, const std::array<Index, 3>& points,
+                       const std::array<double, 3>& weights, const Vec3& at, const Vec3& n, double gap);
   BulletCollisions(const BulletCollisions&) = delete;  // the tree owns its nodes
   BulletCollisions& operator=(const BulletCollisions&) = delete;
 
@@ -137,6 +159,13 @@ class BulletCollisions final : public CollisionSource {
   };
   std::vector<Pending> m_pending;
   std::vector<DynamicContact> m_dynamic_contacts;
+  // process_features: the surfaces' triangles and edges binned by their boxes over the step, and each
+  // shape's features (keyed by shape and scale).
+  ccd::BoxGrid m_triangle_grid, m_segment_grid;
+  std::vector<Eigen::AlignedBox3d> m_triangle_box, m_segment_box;
+  mutable std::vector<std::pair<std::pair<const btCollisionShape*, btVector3>, Features>> m_features;
+  std::vector<int> m_particle_object;  // per particle: the object the particle tests held it off, or -1
+  std::vector<Index> m_seen_feature;   // per triangle or edge: the last feature that tested it
   void push_pending(btRigidBody* body, const btVector3& arm, const Vec3& j);
   double m_deepest = 0.0;
   int m_contacts = 0;

@@ -71,6 +71,10 @@ struct CouplingSettings {
   bool collisions = true;
   double thickness = 0.01;  ///< [m]
   double friction = 0.3;    ///< Coulomb coefficient
+  /// With collisions: the corners and edges of polyhedral bodies (boxes, convex hulls, compounds of
+  /// them) against the faces and edges of the registered surfaces (CollisionSettings::features), so
+  /// a box edge between two cloth nodes does not poke through the face between them.
+  bool feature_contacts = true;
   /// Contacts between a coupled dynamic body and any other body are solved in sinew's step, with the
   /// binding springs and joints (JointRow::unilateral, from Bullet's contact manifolds, found again at
   /// the tick's start), instead of by Bullet after it: a stiff binding spring on a light body then
