@@ -2053,5 +2053,67 @@ TEST(BulletCollisions, ABoxEdgeThrownIntoAClothKeepsTheMomentum) {
   }
 }
 
+// A convex hull ridge (a triangular prism, apex along z at y = 0, Bullet's default 4 cm margin
+// rounding it) under the same cloth: its edges come from the hull, and the cloth keeps the thickness
+// plus the margin over the apex. Then the hull's points are changed in place (the apex raised 3 cm,
+// the body kinematic so its box follows): the corners and edges are made again from the points as
+// they are now, and the cloth is lifted with the apex (a hull kept for the shape's address would
+// leave the new apex poking through).
+TEST(BulletCollisions, AHullRidgeKeepsItsMarginAndIsTestedAsItIsNow) {
+  BulletWorld bw(btVector3(0, -9.81, 0));
+  auto hull = std::make_unique<btConvexHullShape>();
+  for (const double z : {-0.5, 0.5}) {
+    hull->addPoint(btVector3(-0.3, -0.3, btScalar(z)), false);
+    hull->addPoint(btVector3(0.3, -0.3, btScalar(z)), false);
+    hull->addPoint(btVector3(0, 0, btScalar(z)), false);
+  }
+  hull->recalcLocalAabb();
+  btConvexHullShape* shape = hull.get();
+  btRigidBody* ridge = bw.add_body(bw.keep(std::move(hull)), 0.0, scenes::at(btVector3(0, 0, 0)));
+  ridge->setCollisionFlags(ridge->getCollisionFlags() | btCollisionObject::CF_KINEMATIC_OBJECT);
+  ridge->setActivationState(DISABLE_DEACTIVATION);
+  bullet::Coupling coupling(&bw.world());
+  scenes::ClothGridSettings c = small_cloth(Vec3(-0.3, 0.08, -0.3));
+  c.nx = c.ny = 4;
+  c.width = c.height = 0.6;
+  c.down = Vec3::UnitZ();
+  const scenes::ClothGrid cloth = scenes::add_cloth_grid(coupling.system(), c);
+  const Vectors3& x = coupling.system().particles().x;
+  // The cloth's lowest height over the apex line (0, apex, z), |z| <= 0.25.
+  const auto lowest_over_apex = [&] {
+    double lowest = kInfinity;
+    for (double z = -0.25; z <= 0.25; z += 0.01)
+      for (const auto& t : cloth.triangles) {
+        const Eigen::Vector2d p(0.0, z), a(x(0, t[0]), x(2, t[0])), b(x(0, t[1]), x(2, t[1])),
+            d(x(0, t[2]), x(2, t[2]));
+        const double area = (b - a).x() * (d - a).y() - (b - a).y() * (d - a).x();
+        const double wb = ((p - a).x() * (d - a).y() - (p - a).y() * (d - a).x()) / area;
+        const double wd = ((b - a).x() * (p - a).y() - (b - a).y() * (p - a).x()) / area;
+        const double wa = 1.0 - wb - wd;
+        if (wa < 0.0 || wb < 0.0 || wd < 0.0) continue;
+        lowest = std::min(lowest, wa * x(1, t[0]) + wb * x(1, t[1]) + wd * x(1, t[2]));
+      }
+    return lowest;
+  };
+  const double reach = bullet::CouplingSettings{}.thickness + double(shape->getMargin());
+  double lowest = kInfinity;
+  for (int tick = 0; tick < 240; ++tick) {
+    bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+    lowest = std::min(lowest, lowest_over_apex());
+  }
+  EXPECT_GT(lowest, 0.9 * reach) << "over the hull's apex";
+  // The apex raised 3 cm in place.
+  for (int i = 0; i < shape->getNumPoints(); ++i)
+    if (shape->getUnscaledPoints()[i].y() > btScalar(-0.1)) shape->getUnscaledPoints()[i].setY(btScalar(0.03));
+  shape->recalcLocalAabb();
+  lowest = kInfinity;
+  for (int tick = 0; tick < 240; ++tick) {
+    bw.world().stepSimulation(btScalar(1.0 / 240), 1, btScalar(1.0 / 240));
+    if (tick >= 120) lowest = std::min(lowest, lowest_over_apex());
+  }
+  EXPECT_GT(lowest, 0.03 + 0.9 * reach) << "over the raised apex";
+  EXPECT_TRUE(x.allFinite());
+}
+
 }  // namespace
 }  // namespace sinew

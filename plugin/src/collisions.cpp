@@ -482,10 +482,9 @@ void BulletCollisions::process(CollisionContext& c) {
 // relative to the body stopped (Coulomb friction on the slip), the body taking the opposite impulse.
 
 const BulletCollisions::Features& BulletCollisions::features_of(const btPolyhedralConvexShape* shape) const {
-  const auto key = std::pair<const btCollisionShape*, btVector3>(shape, shape->getLocalScaling());
-  for (const auto& [k, f] : m_features)
-    if (k.first == key.first && k.second == key.second) return f;
-  Features f;
+  // The shape's vertices as they are now (scaled), and its margin: an entry is reused only for the
+  // same shape with the same vertices and margin, so a shape changed in place, or a new one at a
+  // freed one's address, gets its own hull.
   std::vector<double> coords;
   for (int i = 0; i < shape->getNumVertices(); ++i) {
     btVector3 v;
@@ -494,7 +493,14 @@ const BulletCollisions::Features& BulletCollisions::features_of(const btPolyhedr
   }
   // A box's vertices are its corners; any other polyhedral shape is rounded by its margin, which
   // Bullet's contacts (and sinew's particle tests) include.
-  f.margin = shape->getShapeType() == BOX_SHAPE_PROXYTYPE ? 0.0 : double(shape->getMargin());
+  const double margin = shape->getShapeType() == BOX_SHAPE_PROXYTYPE ? 0.0 : double(shape->getMargin());
+  for (const Features& f : m_features)
+    if (f.shape == shape && f.margin == margin && f.vertices == coords) return f;
+  if (m_features.size() >= kMaxFeatureShapes) m_features.clear();  // shapes come and go: start again
+  Features& f = m_features.emplace_back();
+  f.shape = shape;
+  f.margin = margin;
+  f.vertices = coords;
   btConvexHullComputer hull;
   if (!coords.empty()) {
     hull.compute(coords.data(), 3 * int(sizeof(double)), shape->getNumVertices(), 0, 0);
@@ -504,8 +510,7 @@ const BulletCollisions::Features& BulletCollisions::features_of(const btPolyhedr
       if (a < b) f.edges.push_back({a, b});
     }
   }
-  m_features.push_back({key, std::move(f)});
-  return m_features.back().second;
+  return f;
 }
 
 void BulletCollisions::respond_to_body(CollisionContext& c, int o, const std::array<Index, 3>& points,

@@ -8,6 +8,7 @@
 #include <BulletCollision/BroadphaseCollision/btDbvt.h>
 #include <btBulletDynamicsCommon.h>
 
+#include <deque>
 #include <functional>
 #include <string_view>
 #include <unordered_map>
@@ -123,12 +124,16 @@ class BulletCollisions final : public CollisionSource {
   void process_features(CollisionContext& c);
   /// A polyhedral shape's corners and edges in its own frame (the hull of its vertices, from Bullet's
   /// btConvexHullComputer), and the extra reach of its rounding margin (none for a box, whose
-  /// corners are its surface); computed once per shape and scale.
+  /// corners are its surface); computed once per shape, vertices and margin.
   struct Features {
+    const btCollisionShape* shape = nullptr;  // the shape, vertices and margin the hull was made from
+    std::vector<double> vertices;
     std::vector<Vec3> corners;
     std::vector<std::array<int, 2>> edges;
     double margin = 0.0;
   };
+  /// features_of keeps the hulls of at most this many shapes (then starts again).
+  static constexpr std::size_t kMaxFeatureShapes = 256;
   const Features& features_of(const btPolyhedralConvexShape* shape) const;
   /// Pushes the surface points `points` (weights summing to 1, -1 for none) of a contact with object o
   /// at world point `at` along n (from the body towards the surface) by `gap`, stops their approach
@@ -163,9 +168,9 @@ class BulletCollisions final : public CollisionSource {
   // shape's features (keyed by shape and scale).
   ccd::BoxGrid m_triangle_grid, m_segment_grid;
   std::vector<Eigen::AlignedBox3d> m_triangle_box, m_segment_box;
-  mutable std::vector<std::pair<std::pair<const btCollisionShape*, btVector3>, Features>> m_features;
-  std::vector<int> m_particle_object;  // per particle: the object the particle tests held it off, or -1
-  std::vector<Index> m_seen_feature;   // per triangle or edge: the last feature that tested it
+  mutable std::deque<Features> m_features;  // a deque: the references features_of returns stay valid
+  std::vector<int> m_particle_object;       // per particle: the object the particle tests held it off, or -1
+  std::vector<Index> m_seen_feature;        // per triangle or edge: the last feature that tested it
   void push_pending(btRigidBody* body, const btVector3& arm, const Vec3& j);
   double m_deepest = 0.0;
   int m_contacts = 0;
