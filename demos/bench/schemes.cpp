@@ -116,6 +116,7 @@ struct Run {
   Vectors3 middle, end;
   double ms_per_frame = 0.0;
   double substeps_per_frame = 0.0;
+  double cg_per_substep = 0.0;  // CG iterations of steps 1 and 4 per substep
 };
 
 Run run(const std::string& name, const Scheme& scheme, int frames) {
@@ -141,8 +142,10 @@ Run run(const std::string& name, const Scheme& scheme, int frames) {
     r.failure = e.what();
   }
   r.ms_per_frame = 1e3 * seconds / std::max<std::size_t>(1, r.energy.size());
-  if (const StepStats* s = scene->total_stats(); s && !r.energy.empty())
+  if (const StepStats* s = scene->total_stats(); s && !r.energy.empty()) {
     r.substeps_per_frame = double(s->substeps) / double(r.energy.size());
+    r.cg_per_substep = double(s->cg_iterations_step1 + s->cg_iterations_step4) / double(std::max(1, s->substeps));
+  }
   return r;
 }
 
@@ -150,7 +153,7 @@ struct Row {
   Scheme scheme;
   bool held = false;
   std::string why;  // when it did not hold
-  double ms = 0.0, error_middle = 0.0, error_end = 0.0, gain = 0.0, substeps = 0.0;
+  double ms = 0.0, error_middle = 0.0, error_end = 0.0, gain = 0.0, substeps = 0.0, cg = 0.0;
 };
 
 Row measure(const std::string& name, const Scheme& scheme, const Options& o, const Run& reference) {
@@ -166,6 +169,7 @@ Row measure(const std::string& name, const Scheme& scheme, const Options& o, con
   }
   row.ms = bench::median(times);
   row.substeps = first.substeps_per_frame;
+  row.cg = first.cg_per_substep;
   if (!first.failure.empty()) {
     row.why = "stopped at frame " + std::to_string(first.energy.size() + 1) + ": " + first.failure;
     return row;
@@ -187,8 +191,8 @@ Row measure(const std::string& name, const Scheme& scheme, const Options& o, con
 }
 
 void print_row(std::FILE* out, const Row& r) {
-  std::fprintf(out, "| %s | %.2f | %.1f | %.2e m | %.2e m | %.2f%% | %s |\n", label(r.scheme).c_str(), r.ms, r.substeps,
-               r.error_middle, r.error_end, 100.0 * r.gain, r.held ? "yes" : r.why.c_str());
+  std::fprintf(out, "| %s | %.2f | %.1f | %.1f | %.2e m | %.2e m | %.2f%% | %s |\n", label(r.scheme).c_str(), r.ms,
+               r.substeps, r.cg, r.error_middle, r.error_end, 100.0 * r.gain, r.held ? "yes" : r.why.c_str());
 }
 
 Options parse(int argc, char** argv) {
@@ -240,8 +244,10 @@ int main(int argc, char** argv) try {
         "its RMS change at twice the step: %.1e m at the middle, %.1e m at the end)\n\n",
         name.c_str(), o.frames, reference.substeps_per_frame, rms(coarser.middle, reference.middle),
         rms(coarser.end, reference.end));
-    std::printf("| scheme | ms / frame | substeps / frame | RMS error, middle | at the end | energy gain | held |\n");
-    std::printf("|---|---|---|---|---|---|---|\n");
+    std::printf(
+        "| scheme | ms / frame | substeps / frame | CG iterations / substep | RMS error, middle | at the end | energy "
+        "gain | held |\n");
+    std::printf("|---|---|---|---|---|---|---|---|\n");
     std::vector<Row> rows;
     rows.push_back(measure(name, Scheme{.name = "auto", .automatic = true}, o, reference));
     if (!o.auto_only)

@@ -334,7 +334,9 @@ class System {
   ///    (StepStats::contact_work, as CG iterations at kCgWorkPerParticle), counted from the last frames
   ///    that used it (deterministic: counts, not clocks); once explicit has a count, an implicit
   ///    scheme never run, or not run for kRetryImplicitFrames frames, is tried where it takes fewer
-  ///    substeps, so its count is measured, not guessed or stale; explicit frames take enough substeps that no body
+  ///    substeps, so its count is measured, not guessed or stale; the first frame takes the cheaper
+  ///    guess, later frames switch only for a clear gain (twice it to an explicit step never counted,
+  ///    whose guess leaves out its CG iterations); explicit frames take enough substeps that no body
   ///    turns more than kMaxExplicitTurn in one;
   ///  - the solves of a frame it chose stop (StepSettings::cg_rms_tolerance, a bound on the RMS
   ///    velocity error) at StepSettings::relative_tolerance of a substep's velocity change a dt, a the
