@@ -88,11 +88,12 @@ int run_headless(const Program& program, const Options& o, const RunHooks& hooks
         "{\"scene\": \"%s\", \"particles\": %lld, \"rigid_bodies\": %lld, \"frames\": %d, \"frame_dt\": %.6g, "
         "\"ticks_per_frame\": %d, "
         "%s\"wall_ms_per_frame\": %.3f, \"max_hard_binding_drift\": %.3g, \"max_binding_spring_stretch\": %.3g, "
-        "\"deepest_penetration\": %.3g, \"energy_start\": %.6g, \"energy_end\": %.6g, \"finite\": true, "
+        "\"deepest_penetration\": %.3g, \"velocity_rms\": %.3g, \"energy_start\": %.6g, \"energy_end\": %.6g, "
+        "\"finite\": true, "
         "\"state_hash\": \"%016llx\"}\n",
         name.c_str(), static_cast<long long>(now.particles), static_cast<long long>(now.rigid_bodies), o.frames,
         t.frame_dt, t.substeps, stats.c_str(), wall_ms / o.frames, worst.hard_binding_drift,
-        worst.binding_spring_stretch, worst.deepest_penetration, energy_start, now.energy,
+        worst.binding_spring_stretch, worst.deepest_penetration, now.velocity_rms, energy_start, now.energy,
         static_cast<unsigned long long>(scene->state_hash()));
   } catch (const Error& e) {
     std::printf("{\"scene\": \"%s\", \"finite\": false, \"error\": \"%s\"}\n", name.c_str(),

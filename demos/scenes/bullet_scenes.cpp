@@ -83,6 +83,7 @@ SceneMeasures BulletScene::measure() {
   m.binding_spring_stretch = system().binding_springs().max_stretch(system().particles().x);
   m.deepest_penetration = m_coupling->deepest_penetration();
   m.energy = total_energy();
+  m.velocity_rms = velocity_rms(system());
   return m;
 }
 

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cmath>
 #include <cstring>
 
 namespace sinew::scenes {
@@ -70,7 +71,20 @@ SceneMeasures CoreScene::measure() {
   m.hard_binding_drift = m_system.max_hard_binding_drift();
   m.binding_spring_stretch = m_system.binding_springs().max_stretch(m_system.particles().x);
   m.energy = m_system.kinetic_energy() + m_system.potential_energy();
+  m.velocity_rms = velocity_rms(m_system);
   return m;
+}
+
+double velocity_rms(const System& system) {
+  const Particles& p = system.particles();
+  double sum = 0.0;
+  Index count = 0;
+  for (Index i = 0; i < p.size(); ++i)
+    if (p.kind[i] == ParticleKind::free && p.mass[i] > 0.0) {
+      sum += p.v.col(i).squaredNorm();
+      ++count;
+    }
+  return count > 0 ? std::sqrt(sum / double(count)) : 0.0;
 }
 
 }  // namespace sinew::scenes

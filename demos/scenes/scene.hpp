@@ -37,7 +37,12 @@ struct SceneMeasures {
   double binding_spring_stretch = 0.0;  ///< largest binding-spring length [m]
   double deepest_penetration = 0.0;     ///< into a collision shape [m]
   double energy = 0.0;                  ///< kinetic + potential, deformable and rigid [J]
+  /// Root mean square of the free particles' speeds (the nodes with mass a user sees; not bound
+  /// points nor soft-bound duplicates) [m/s]: a scene at rest reads near zero, a jittering one does not.
+  double velocity_rms = 0.0;
 };
+/// SceneMeasures::velocity_rms of a system's particles.
+double velocity_rms(const System& system);
 
 class Scene {
  public:

@@ -161,6 +161,29 @@ BulletCollisions::BulletCollisions(btCollisionWorld* world, const CollisionSetti
     fail("collision settings: friction ", settings.friction, " must be non-negative and finite");
 }
 
+namespace {
+// Pairs ordered by particle, then by object address (std::less: a total order on pointers).
+bool pair_less(const std::pair<Index, const btCollisionObject*>& a,
+               const std::pair<Index, const btCollisionObject*>& b) {
+  return a.first != b.first ? a.first < b.first : std::less<const btCollisionObject*>()(a.second, b.second);
+}
+}  // namespace
+
+void BulletCollisions::set_pinches(ObjectPairs only, ObjectPairs passes) {
+  std::sort(only.begin(), only.end(), pair_less);
+  std::sort(passes.begin(), passes.end(), pair_less);
+  m_pinch_only = std::move(only);
+  m_pinch_passes = std::move(passes);
+}
+
+bool BulletCollisions::pinch_admits(Index i, const btCollisionObject* o) const {
+  if (m_pinch_only.empty() && m_pinch_passes.empty()) return true;
+  const auto first = std::lower_bound(m_pinch_only.begin(), m_pinch_only.end(), std::make_pair(i, o),
+                                      [](const auto& a, const auto& b) { return a.first < b.first; });
+  if (first != m_pinch_only.end() && first->first == i) return first->second == o;
+  return !std::binary_search(m_pinch_passes.begin(), m_pinch_passes.end(), std::make_pair(i, o), pair_less);
+}
+
 int BulletCollisions::closest_object(const CollisionContext& c, Index i, double& phi, Vec3& normal) const {
   const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
   const double thickness = m_settings.thickness;
@@ -187,6 +210,7 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
   for (const int o : m_candidates) {
     // CF_NO_CONTACT_RESPONSE: Bullet reports the object's contacts and resolves none; neither does sinew.
     if (!objects[o]->hasContactResponse()) continue;
+    if (!pinch_admits(i, objects[o])) continue;
     if (!m_tied.empty() && m_rigid_particles) {
       const auto found = m_rigid_particles->find(objects[o]);
       if (found != m_rigid_particles->end() &&
@@ -657,6 +681,7 @@ void BulletCollisions::process_features(CollisionContext& c) {
   m_triangle_grid.build(m_triangle_box, cell);
   m_segment_grid.build(m_segment_box, cell);
   const auto admits = [&](int o, Index i) {
+    if (!pinch_admits(i, objects[o])) return false;
     const btBroadphaseProxy* proxy = objects[o]->getBroadphaseHandle();
     if (proxy && !c.geometry->collides(i, static_cast<std::uint32_t>(proxy->m_collisionFilterGroup),
                                        static_cast<std::uint32_t>(proxy->m_collisionFilterMask)))
@@ -677,9 +702,10 @@ void BulletCollisions::process_features(CollisionContext& c) {
   // Nor one with a point another object holds this step (the particle tests found it within the
   // thickness of that object): pushed off this body, it would be pushed into the other (a cloth
   // pinched between a box and the ground); the particle tests keep it out of the nearer.
+  // Likewise one with a pinched node (figure 10), which its duplicates hold off this body.
   const auto held_elsewhere = [&](Index i, int o) {
     const int other = m_particle_object[static_cast<std::size_t>(i)];
-    return other >= 0 && other != o;
+    return (other >= 0 && other != o) || !pinch_admits(i, objects[o]);
   };
   const auto movable = [&](Index i) {
     const ParticleKind kind = particles.kind[i];

@@ -12,6 +12,8 @@
 #include <btBulletDynamicsCommon.h>
 
 #include <algorithm>
+#include <cmath>
+#include <functional>
 #include <mutex>
 #include <utility>
 
@@ -171,6 +173,10 @@ Coupling::Coupling(btDynamicsWorld* world, const CouplingSettings& settings) : m
   if (settings.use_world_gravity) system.gravity = to_eigen(world->getGravity());
   m_use_world_gravity = settings.use_world_gravity;
   m_body_contacts = settings.body_contacts;
+  m_pinching = settings.pinching;
+  if (!(std::isfinite(settings.pinch_stiffness) && settings.pinch_stiffness > 0))
+    fail("bullet coupling: pinch_stiffness ", settings.pinch_stiffness, " must be positive and finite");
+  m_pinch_stiffness = settings.pinch_stiffness;
   m_system = System(system);
   // Bullet turns a body by at most pi/4 per step whatever its angular velocity (btTransformUtil::
   // integrateTransform's ANGULAR_MOTION_THRESHOLD); the step turns the rigid-body particles and the
@@ -658,6 +664,163 @@ Index Coupling::attach(Index point, btRigidBody* body, const Vec3& local, double
   return m_system.add_binding_spring({point, end, stiffness, damping_ratio});
 }
 
+// ---- pinching (figure 10) -----------------------------------------------------------------------
+//
+// Two objects closing on a node from opposite sides ask for contradictory positions: pushed out of
+// the nearer one it is pushed into the other, and once they are closer than twice the thickness no
+// position meets both (the node jitters between them, or is squeezed out through one and the cloth
+// slides out of the grip). Section 4 (figure 10): the node collides with neither; it gets two
+// duplicates, soft-bound to it by binding springs (section 3: each has the node's effective mass and
+// the node's elastic and external accelerations mapped to it, so it moves as the node would), each
+// colliding with one of the objects only. Each object pushes its duplicate out of itself; the springs
+// pull the node both ways and it settles between the two, held by the duplicates' friction on the
+// objects, which the springs press them against.
+//
+// A free node with mass is pinched when two objects that would collide with it (contact response,
+// filters, not a body it is tied to) are within twice the thickness of it with opposed outward
+// normals (n_a . n_b < -1/2); of several such pairs, the one nearest in summed distance. It stays
+// pinched while both are within four times the thickness with n_a . n_b < -0.3 (the hysteresis keeps
+// a pinch from flickering); then its duplicates are removed (System::remove_particles: their indices
+// stay reserved). Poses are Bullet's at the tick's start. Cost: one signed distance per node and
+// object whose box, grown by the reach, holds the node.
+void Coupling::update_pinches() {
+  const auto collided = [&](const std::vector<Pinch>& pinches) {
+    BulletCollisions::ObjectPairs only, passes;
+    for (const Pinch& p : pinches)
+      for (int k = 0; k < 2; ++k) {
+        only.emplace_back(p.duplicate[k], p.object[k]);
+        passes.emplace_back(p.node, p.object[k]);
+      }
+    m_collisions->set_pinches(std::move(only), std::move(passes));
+  };
+  if (!m_collisions || (!m_pinching && m_pinches.empty())) return;
+  const double h = m_collisions->thickness();
+  const double reach = 2.0 * h, keep_reach = 4.0 * h;
+  const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
+  const Particles& particles = m_system.particles();
+  const CollisionGeometry& geometry = m_system.collision_geometry();
+  const Index n = particles.size();
+  const auto pinchable = [&](Index i) {
+    return i < n && particles.kind[i] == ParticleKind::free && particles.mass[i] > 0.0 &&
+           !std::any_of(m_tied.begin(), m_tied.end(), [i](const auto& t) { return t.first == i; });
+  };
+  // The objects that may pinch: with contact response, their boxes grown by the reach meeting the
+  // free nodes' box.
+  Eigen::AlignedBox3d nodes;
+  for (Index i = 0; i < n; ++i)
+    if (particles.kind[i] == ParticleKind::free) nodes.extend(Vec3(particles.x.col(i)));
+  struct Near {
+    int object;
+    Eigen::AlignedBox3d box;
+  };
+  std::vector<Near> near;
+  if (m_pinching && !nodes.isEmpty())
+    for (int o = 0; o < objects.size(); ++o) {
+      if (!objects[o]->hasContactResponse() || !objects[o]->getCollisionShape()) continue;
+      btVector3 lo, hi;
+      objects[o]->getCollisionShape()->getAabb(objects[o]->getWorldTransform(), lo, hi);
+      Eigen::AlignedBox3d box(to_eigen(lo), to_eigen(hi));
+      box.min().array() -= keep_reach;
+      box.max().array() += keep_reach;
+      if (box.intersects(nodes)) near.push_back({o, box});
+    }
+  const auto admits = [&](Index i, const btCollisionObject* o) {
+    const btBroadphaseProxy* proxy = o->getBroadphaseHandle();
+    return !proxy || geometry.collides(i, static_cast<std::uint32_t>(proxy->m_collisionFilterGroup),
+                                       static_cast<std::uint32_t>(proxy->m_collisionFilterMask));
+  };
+  const auto distance = [&](Index i, const btCollisionObject* o, double within, double& phi, Vec3& normal) {
+    return signed_distance(o->getCollisionShape(), o->getWorldTransform(), particles.x.col(i), within, phi, normal) &&
+           phi < within;
+  };
+  // Existing pinches: kept while the node is free, its duplicates are still soft-bound to it and both
+  // objects are still in the world and near it.
+  std::vector<const btCollisionObject*> present(objects.size());
+  for (int o = 0; o < objects.size(); ++o) present[static_cast<std::size_t>(o)] = objects[o];
+  std::sort(present.begin(), present.end(), std::less<const btCollisionObject*>());
+  const auto in_world = [&](const btCollisionObject* o) {
+    return std::binary_search(present.begin(), present.end(), o, std::less<const btCollisionObject*>());
+  };
+  const SoftBindings& soft = m_system.soft_bindings();
+  const auto duplicate_of = [&](Index d, Index node) {
+    for (Index k = 0; k < soft.size(); ++k)
+      if (soft.particle[static_cast<std::size_t>(k)] == d) return soft.target[static_cast<std::size_t>(k)] == node;
+    return false;
+  };
+  std::vector<Pinch> kept;
+  std::vector<Index> removed;
+  std::vector<std::uint8_t> pinched(static_cast<std::size_t>(n), 0);
+  for (const Pinch& p : m_pinches) {
+    bool keep = m_pinching && pinchable(p.node) && duplicate_of(p.duplicate[0], p.node) &&
+                duplicate_of(p.duplicate[1], p.node) && in_world(p.object[0]) && in_world(p.object[1]);
+    if (keep) {
+      double phi[2];
+      Vec3 normal[2];
+      keep = distance(p.node, p.object[0], keep_reach, phi[0], normal[0]) &&
+             distance(p.node, p.object[1], keep_reach, phi[1], normal[1]) && normal[0].dot(normal[1]) < -0.3;
+    }
+    if (keep) {
+      kept.push_back(p);
+      pinched[static_cast<std::size_t>(p.node)] = 1;
+      continue;
+    }
+    for (const Index d : p.duplicate)
+      if (d < n && particles.kind[d] != ParticleKind::removed) removed.push_back(d);
+  }
+  // New pinches, in node order.
+  std::vector<Pinch> added;
+  if (near.size() >= 2) {
+    struct Hit {
+      const btCollisionObject* object;
+      double phi;
+      Vec3 normal;
+    };
+    std::vector<Hit> hits;
+    for (Index i = 0; i < n; ++i) {
+      if (pinched[static_cast<std::size_t>(i)] || !pinchable(i)) continue;
+      const Vec3 x = particles.x.col(i);
+      hits.clear();
+      for (const Near& candidate : near) {
+        if (!candidate.box.contains(x)) continue;
+        const btCollisionObject* o = objects[candidate.object];
+        Hit hit{o, 0.0, Vec3::Zero()};
+        if (admits(i, o) && distance(i, o, reach, hit.phi, hit.normal)) hits.push_back(hit);
+      }
+      double best = kInfinity;
+      Pinch pinch;
+      for (std::size_t a = 0; a < hits.size(); ++a)
+        for (std::size_t b = a + 1; b < hits.size(); ++b)
+          if (hits[a].normal.dot(hits[b].normal) < -0.5 && hits[a].phi + hits[b].phi < best) {
+            best = hits[a].phi + hits[b].phi;
+            pinch.object[0] = hits[a].object;
+            pinch.object[1] = hits[b].object;
+          }
+      if (best == kInfinity) continue;
+      pinch.node = i;
+      added.push_back(pinch);
+    }
+  }
+  if (!removed.empty()) m_system.remove_particles(removed);
+  for (Pinch& p : added) {
+    const Index node = p.node;
+    for (Index& d : p.duplicate) {
+      d = m_system.add_particle(m_system.particles().x.col(node), m_system.particles().v.col(node),
+                                m_system.particles().mass[node]);
+      m_system.set_collision_filter(d, geometry.group[static_cast<std::size_t>(node)],
+                                    geometry.mask[static_cast<std::size_t>(node)]);
+      SoftBindingSettings binding;
+      binding.particle = d;
+      binding.target = node;
+      binding.stiffness = m_pinch_stiffness;
+      m_system.add_soft_binding(binding);
+    }
+    kept.push_back(p);
+  }
+  std::sort(kept.begin(), kept.end(), [](const Pinch& a, const Pinch& b) { return a.node < b.node; });
+  m_pinches = std::move(kept);
+  collided(m_pinches);
+}
+
 void Coupling::find_tied_particles() {
   const HardBindings& hard = m_system.hard_bindings();
   const BindingSprings& springs = m_system.binding_springs();
@@ -711,6 +874,7 @@ StepStats Coupling::tick(double dt) {
   if (m_system.set_ups() != m_set_ups_seen) adopt_set_up();
   copy_state_in();
   follow_teleports();
+  if (m_collisions) update_pinches();
   if (m_system.needs_set_up()) set_up();
   copy_joints_in(dt);
   if (m_system.asleep()) wake_on_approach(dt);

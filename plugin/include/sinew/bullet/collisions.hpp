@@ -97,6 +97,13 @@ class BulletCollisions final : public CollisionSource {
   /// a point on a body (Coupling::attach) passes through that body, as Bullet's constraints may turn
   /// off collisions between the bodies they link. Sorted; the coupling sets them every tick.
   void set_tied(const std::vector<std::pair<Index, Index>>& tied) { m_tied = tied; }
+  /// Figure 10's pinches (Coupling, CouplingSettings::pinching). A particle in `only` meets that
+  /// object alone (a pinched node's duplicate); a pair in `passes` lets the particle through that
+  /// object (the pinched node itself, which its duplicates hold). The coupling sets them every tick.
+  using ObjectPairs = std::vector<std::pair<Index, const btCollisionObject*>>;
+  void set_pinches(ObjectPairs only, ObjectPairs passes);
+  /// Whether the pinches let particle i meet object o.
+  bool pinch_admits(Index i, const btCollisionObject* o) const;
 
   /// The continuous test samples a path at most this many times: a body thinner than 1/64 of its
   /// motion relative to a particle within one step can still pass it.
@@ -175,6 +182,7 @@ class BulletCollisions final : public CollisionSource {
   double m_deepest = 0.0;
   int m_contacts = 0;
   std::vector<std::pair<Index, Index>> m_tied;
+  ObjectPairs m_pinch_only, m_pinch_passes;  // sorted by particle, then object address
 };
 
 }  // namespace sinew::bullet
