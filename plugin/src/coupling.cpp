@@ -679,10 +679,13 @@ Index Coupling::attach(Index point, btRigidBody* body, const Vec3& local, double
 // A free node with mass is pinched when two objects that would collide with it (contact response,
 // filters, not a body it is tied to) are within twice the thickness of it with opposed outward
 // normals (n_a . n_b < -1/2); of several such pairs, the one nearest in summed distance. It stays
-// pinched while both are within four times the thickness with n_a . n_b < -0.3 (the hysteresis keeps
-// a pinch from flickering); then its duplicates are removed (System::remove_particles: their indices
-// stay reserved). Poses are Bullet's at the tick's start. Cost: one signed distance per node and
-// object whose box, grown by the reach, holds the node.
+// pinched while both are within four times the thickness (the hysteresis keeps a pinch from
+// flickering), whatever their normals: two boxes pressed face to face leave the nodes at the rim of
+// their faces beside both edges, normals alike, and such a node released was pushed out by the
+// thickness at every step and pulled back in by the cloth inside the pinch (the whole cloth jittered
+// at 2 m/s). Then its duplicates are removed (System::remove_particles: their indices stay
+// reserved). Poses are Bullet's at the tick's start. Cost: one signed distance per node and object
+// whose box, grown by the reach, holds the node.
 void Coupling::update_pinches() {
   const auto collided = [&](const std::vector<Pinch>& pinches) {
     BulletCollisions::ObjectPairs only, passes;
@@ -757,7 +760,7 @@ void Coupling::update_pinches() {
       double phi[2];
       Vec3 normal[2];
       keep = distance(p.node, p.object[0], keep_reach, phi[0], normal[0]) &&
-             distance(p.node, p.object[1], keep_reach, phi[1], normal[1]) && normal[0].dot(normal[1]) < -0.3;
+             distance(p.node, p.object[1], keep_reach, phi[1], normal[1]);
     }
     if (keep) {
       kept.push_back(p);
@@ -1237,9 +1240,13 @@ Coupling::BodyView Coupling::body_view(btRigidBody* body, bool at_tick_start) co
   if (view.particle < 0) {
     view.centre = to_eigen(frame.getOrigin());
     view.inverse_mass = static_cast<double>(body->getInvMass());
+    // Bullet's per-axis locks (setLinearFactor, setAngularFactor) scale what an impulse changes, as
+    // its applyImpulse does: a body locked to one axis is pushed along that axis only.
+    view.linear_factor = to_eigen(body->getLinearFactor());
+    const Vec3 angular_factor = to_eigen(body->getAngularFactor());
     const btMatrix3x3& i = body->getInvInertiaTensorWorld();
     for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) view.inverse_inertia(r, c) = static_cast<double>(i[r][c]);
+      for (int c = 0; c < 3; ++c) view.inverse_inertia(r, c) = angular_factor[r] * static_cast<double>(i[r][c]);
   } else {
     const Index b = view.particle;
     view.offset = to_eigen(frame.getRotation()) * Vec3(m_merged_offset.col(b));
@@ -1262,13 +1269,15 @@ Vec3 Coupling::BodyView::velocity(const Vec3& lever) const {
 
 double Coupling::BodyView::inverse_mass_along(const Vec3& lever, const Vec3& u) const {
   const Vec3 t = lever.cross(u);
-  return inverse_mass + t.dot(inverse_inertia * t);
+  // u is a unit vector: u . u = 1 for a body with no locked axis.
+  const double free = linear_factor == Vec3::Ones() ? 1.0 : u.dot(linear_factor.cwiseProduct(u));
+  return inverse_mass * free + t.dot(inverse_inertia * t);
 }
 
 void Coupling::BodyView::push(const Vec3& lever, const Vec3& j) const {
   const Vec3 w = to_eigen(body->getAngularVelocity()) + inverse_inertia * lever.cross(j);
   // The centre's velocity changes by j / m; Bullet's centre, offset from it, moves with it and w.
-  const Vec3 v_centre = velocity(Vec3::Zero()) + inverse_mass * j;
+  const Vec3 v_centre = velocity(Vec3::Zero()) + inverse_mass * linear_factor.cwiseProduct(j);
   body->setLinearVelocity(to_bullet(v_centre - w.cross(offset)));
   body->setAngularVelocity(to_bullet(w));
 }

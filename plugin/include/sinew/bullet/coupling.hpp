@@ -94,8 +94,8 @@ struct CouplingSettings {
   /// two, and gets two soft-bound duplicates (section 3: the node's effective mass, its elastic and
   /// external accelerations mapped to them), each colliding with one of the two objects only, tied to
   /// it by binding springs of `pinch_stiffness`; the node hangs between them, held by their friction.
-  /// Released (the duplicates removed) when the objects part. Off: the particle is pushed out of the
-  /// nearer object, which may push it into the other.
+  /// Released (the duplicates removed) when either object is more than four thicknesses away. Off:
+  /// the particle is pushed out of the nearer object, which may push it into the other.
   bool pinching = true;
   /// [N/m] The duplicates' binding springs. Their pull presses the duplicates on and sets the grip
   /// (with `friction`); stiffer ones leave each step's end velocity further from the motion (friction
@@ -187,7 +187,8 @@ class Coupling {
     Vec3 centre = Vec3::Zero();
     Vec3 offset = Vec3::Zero();  // from Bullet's centre of mass to the merged one, now
     double inverse_mass = 0.0;
-    Mat3 inverse_inertia = Mat3::Zero();
+    Vec3 linear_factor = Vec3::Ones();    // Bullet's per-axis locks (uncoupled bodies)
+    Mat3 inverse_inertia = Mat3::Zero();  // with the angular locks applied
     Vec3 velocity(const Vec3& lever) const;
     double inverse_mass_along(const Vec3& lever, const Vec3& u) const;
     void push(const Vec3& lever, const Vec3& j) const;
