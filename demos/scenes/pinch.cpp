@@ -12,7 +12,7 @@ namespace {
 // side until they overlap each other by 2 cm (0.75 s, eased), hold, and at 1.5 s the bar lets go
 // (Coupling::remove), so the cloth hangs from the pinch alone; at 4 s the spheres part again (0.75 s)
 // and let it fall. With pinching (CouplingSettings::
-// pinching, the default) each pinched node gets two soft-bound duplicates, one colliding with each
+// pinching, on here) each pinched node gets two soft-bound duplicates, one colliding with each
 // sphere, and hangs between them on their binding springs, held by their friction. `pinch/naive`
 // runs the same scene with pinching off: each node is pushed out of the nearer sphere, that is into
 // the other one, and the cloth slides out of the grip.

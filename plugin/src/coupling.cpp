@@ -679,9 +679,9 @@ Index Coupling::attach(Index point, btRigidBody* body, const Vec3& local, double
 // A free node with mass is pinched when two objects that would collide with it (contact response,
 // filters, not a body it is tied to) are within twice the thickness of it with opposed outward
 // normals (n_a . n_b < -1/2); of several such pairs, the one nearest in summed distance. It stays
-// pinched while both are within four times the thickness (the hysteresis keeps a pinch from
-// flickering), whatever their normals: two boxes pressed face to face leave the nodes at the rim of
-// their faces beside both edges, normals alike, and such a node released was pushed out by the
+// pinched while both are within four times the thickness of it and both duplicates within that of
+// it (the hysteresis keeps a pinch from flickering), whatever the normals: two boxes pressed face to face leave the
+// nodes at the rim of their faces beside both edges, normals alike, and such a node released was pushed out by the
 // thickness at every step and pulled back in by the cloth inside the pinch (the whole cloth jittered
 // at 2 m/s). Then its duplicates are removed (System::remove_particles: their indices stay
 // reserved). Poses are Bullet's at the tick's start. Cost: one signed distance per node and object
@@ -760,7 +760,9 @@ void Coupling::update_pinches() {
       double phi[2];
       Vec3 normal[2];
       keep = distance(p.node, p.object[0], keep_reach, phi[0], normal[0]) &&
-             distance(p.node, p.object[1], keep_reach, phi[1], normal[1]);
+             distance(p.node, p.object[1], keep_reach, phi[1], normal[1]) &&
+             (particles.x.col(p.duplicate[0]) - particles.x.col(p.node)).norm() < keep_reach &&
+             (particles.x.col(p.duplicate[1]) - particles.x.col(p.node)).norm() < keep_reach;
     }
     if (keep) {
       kept.push_back(p);
