@@ -2246,5 +2246,21 @@ TEST(Pinching, ABoxRestingOnAClothOnTheGroundHoldsItStill) {
   EXPECT_LT(naive_lowest, -0.005);
 }
 
+// A pinch stiffness that is not a positive number is refused when the coupling is made, by name.
+TEST(Pinching, ABadPinchStiffnessIsRefusedByName) {
+  for (const double k : {0.0, -10.0, std::nan(""), kInfinity}) {
+    BulletWorld w(btVector3(0, -9.81, 0));
+    bullet::CouplingSettings settings;
+    settings.pinching = true;
+    settings.pinch_stiffness = k;
+    try {
+      bullet::Coupling coupling(&w.world(), settings);
+      ADD_FAILURE() << "accepted pinch_stiffness " << k;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("pinch_stiffness"), std::string::npos) << e.what();
+    }
+  }
+}
+
 }  // namespace
 }  // namespace sinew
