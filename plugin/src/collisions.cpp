@@ -169,11 +169,11 @@ bool pair_less(const std::pair<Index, const btCollisionObject*>& a,
 }
 }  // namespace
 
-void BulletCollisions::set_pinches(ObjectPairs only, ObjectPairs passes) {
-  std::sort(only.begin(), only.end(), pair_less);
-  std::sort(passes.begin(), passes.end(), pair_less);
-  m_pinch_only = std::move(only);
-  m_pinch_passes = std::move(passes);
+void BulletCollisions::set_pinches(const ObjectPairs& only, const ObjectPairs& passes) {
+  m_pinch_only.assign(only.begin(), only.end());  // into the capacity kept from earlier ticks
+  m_pinch_passes.assign(passes.begin(), passes.end());
+  std::sort(m_pinch_only.begin(), m_pinch_only.end(), pair_less);
+  std::sort(m_pinch_passes.begin(), m_pinch_passes.end(), pair_less);
 }
 
 bool BulletCollisions::pinch_admits(Index i, const btCollisionObject* o) const {

@@ -687,126 +687,113 @@ Index Coupling::attach(Index point, btRigidBody* body, const Vec3& local, double
 // reserved). Poses are Bullet's at the tick's start. Cost: one signed distance per node and object
 // whose box, grown by the reach, holds the node.
 void Coupling::update_pinches() {
-  const auto collided = [&](const std::vector<Pinch>& pinches) {
-    BulletCollisions::ObjectPairs only, passes;
-    for (const Pinch& p : pinches)
-      for (int k = 0; k < 2; ++k) {
-        only.emplace_back(p.duplicate[k], p.object[k]);
-        passes.emplace_back(p.node, p.object[k]);
-      }
-    m_collisions->set_pinches(std::move(only), std::move(passes));
-  };
   if (!m_collisions || (!m_pinching && m_pinches.empty())) return;
+  PinchScratch& w = m_pinch_scratch;
   const double h = m_collisions->thickness();
   const double reach = 2.0 * h, keep_reach = 4.0 * h;
   const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
   const Particles& particles = m_system.particles();
   const CollisionGeometry& geometry = m_system.collision_geometry();
   const Index n = particles.size();
+  // m_tied (the last tick's, sorted by particle): a node tied to a body passes through it already.
   const auto pinchable = [&](Index i) {
+    const auto tied = std::lower_bound(m_tied.begin(), m_tied.end(), i,
+                                       [](const std::pair<Index, Index>& t, Index p) { return t.first < p; });
     return i < n && particles.kind[i] == ParticleKind::free && particles.mass[i] > 0.0 &&
-           !std::any_of(m_tied.begin(), m_tied.end(), [i](const auto& t) { return t.first == i; });
+           (tied == m_tied.end() || tied->first != i);
+  };
+  const auto near_node = [&](Index i, const btCollisionObject* o, double within, double& phi, Vec3& normal) {
+    return signed_distance(o->getCollisionShape(), o->getWorldTransform(), particles.x.col(i), within, phi, normal) &&
+           phi < within;
   };
   // The objects that may pinch: with contact response, their boxes grown by the reach meeting the
   // free nodes' box.
-  Eigen::AlignedBox3d nodes;
-  for (Index i = 0; i < n; ++i)
-    if (particles.kind[i] == ParticleKind::free) nodes.extend(Vec3(particles.x.col(i)));
-  struct Near {
-    int object;
-    Eigen::AlignedBox3d box;
-  };
-  std::vector<Near> near;
-  if (m_pinching && !nodes.isEmpty())
-    for (int o = 0; o < objects.size(); ++o) {
+  w.near.clear();
+  if (m_pinching) {
+    Eigen::AlignedBox3d nodes;
+    for (Index i = 0; i < n; ++i)
+      if (particles.kind[i] == ParticleKind::free) nodes.extend(Vec3(particles.x.col(i)));
+    for (int o = 0; o < objects.size() && !nodes.isEmpty(); ++o) {
       if (!objects[o]->hasContactResponse() || !objects[o]->getCollisionShape()) continue;
       btVector3 lo, hi;
       objects[o]->getCollisionShape()->getAabb(objects[o]->getWorldTransform(), lo, hi);
       Eigen::AlignedBox3d box(to_eigen(lo), to_eigen(hi));
       box.min().array() -= keep_reach;
       box.max().array() += keep_reach;
-      if (box.intersects(nodes)) near.push_back({o, box});
+      if (box.intersects(nodes)) w.near.push_back({o, box});
     }
-  const auto admits = [&](Index i, const btCollisionObject* o) {
-    const btBroadphaseProxy* proxy = o->getBroadphaseHandle();
-    return !proxy || geometry.collides(i, static_cast<std::uint32_t>(proxy->m_collisionFilterGroup),
-                                       static_cast<std::uint32_t>(proxy->m_collisionFilterMask));
-  };
-  const auto distance = [&](Index i, const btCollisionObject* o, double within, double& phi, Vec3& normal) {
-    return signed_distance(o->getCollisionShape(), o->getWorldTransform(), particles.x.col(i), within, phi, normal) &&
-           phi < within;
-  };
-  // Existing pinches: kept while the node is free, its duplicates are still soft-bound to it and both
-  // objects are still in the world and near it.
-  std::vector<const btCollisionObject*> present(objects.size());
-  for (int o = 0; o < objects.size(); ++o) present[static_cast<std::size_t>(o)] = objects[o];
-  std::sort(present.begin(), present.end(), std::less<const btCollisionObject*>());
-  const auto in_world = [&](const btCollisionObject* o) {
-    return std::binary_search(present.begin(), present.end(), o, std::less<const btCollisionObject*>());
-  };
-  const SoftBindings& soft = m_system.soft_bindings();
-  const auto duplicate_of = [&](Index d, Index node) {
-    for (Index k = 0; k < soft.size(); ++k)
-      if (soft.particle[static_cast<std::size_t>(k)] == d) return soft.target[static_cast<std::size_t>(k)] == node;
-    return false;
-  };
-  std::vector<Pinch> kept;
-  std::vector<Index> removed;
-  std::vector<std::uint8_t> pinched(static_cast<std::size_t>(n), 0);
-  for (const Pinch& p : m_pinches) {
-    bool keep = m_pinching && pinchable(p.node) && duplicate_of(p.duplicate[0], p.node) &&
-                duplicate_of(p.duplicate[1], p.node) && in_world(p.object[0]) && in_world(p.object[1]);
-    if (keep) {
-      double phi[2];
-      Vec3 normal[2];
-      keep = distance(p.node, p.object[0], keep_reach, phi[0], normal[0]) &&
-             distance(p.node, p.object[1], keep_reach, phi[1], normal[1]) &&
-             (particles.x.col(p.duplicate[0]) - particles.x.col(p.node)).norm() < keep_reach &&
-             (particles.x.col(p.duplicate[1]) - particles.x.col(p.node)).norm() < keep_reach;
-    }
-    if (keep) {
-      kept.push_back(p);
-      pinched[static_cast<std::size_t>(p.node)] = 1;
-      continue;
-    }
-    for (const Index d : p.duplicate)
-      if (d < n && particles.kind[d] != ParticleKind::removed) removed.push_back(d);
   }
-  // New pinches, in node order.
-  std::vector<Pinch> added;
-  if (near.size() >= 2) {
-    struct Hit {
-      const btCollisionObject* object;
+  if (w.near.size() < 2 && m_pinches.empty()) return;  // nothing to keep, nothing to find
+  // Existing pinches: kept while the node is free, its duplicates are still soft-bound to it, both
+  // objects are still in the world (found by address: a removed one may be gone) and both objects
+  // and both duplicates are near it.
+  w.kept.clear();
+  w.removed.clear();
+  w.pinched.assign(static_cast<std::size_t>(n), 0);
+  if (!m_pinches.empty()) {
+    w.present.assign(objects.size(), nullptr);
+    for (int o = 0; o < objects.size(); ++o) w.present[static_cast<std::size_t>(o)] = objects[o];
+    std::sort(w.present.begin(), w.present.end(), std::less<const btCollisionObject*>());
+    const auto in_world = [&](const btCollisionObject* o) {
+      return std::binary_search(w.present.begin(), w.present.end(), o, std::less<const btCollisionObject*>());
+    };
+    const SoftBindings& soft = m_system.soft_bindings();
+    w.target_of.assign(static_cast<std::size_t>(n), -1);
+    for (Index k = 0; k < soft.size(); ++k)
+      w.target_of[static_cast<std::size_t>(soft.particle[static_cast<std::size_t>(k)])] =
+          soft.target[static_cast<std::size_t>(k)];
+    for (const Pinch& p : m_pinches) {
       double phi;
       Vec3 normal;
-    };
-    std::vector<Hit> hits;
+      const bool keep = m_pinching && pinchable(p.node) && in_world(p.object[0]) && in_world(p.object[1]) &&
+                        w.target_of[static_cast<std::size_t>(p.duplicate[0])] == p.node &&
+                        w.target_of[static_cast<std::size_t>(p.duplicate[1])] == p.node &&
+                        near_node(p.node, p.object[0], keep_reach, phi, normal) &&
+                        near_node(p.node, p.object[1], keep_reach, phi, normal) &&
+                        (particles.x.col(p.duplicate[0]) - particles.x.col(p.node)).norm() < keep_reach &&
+                        (particles.x.col(p.duplicate[1]) - particles.x.col(p.node)).norm() < keep_reach;
+      if (keep) {
+        w.kept.push_back(p);
+        w.pinched[static_cast<std::size_t>(p.node)] = 1;
+        continue;
+      }
+      for (const Index d : p.duplicate)
+        if (d < n && particles.kind[d] != ParticleKind::removed) w.removed.push_back(d);
+    }
+  }
+  // New pinches, in node order.
+  w.added.clear();
+  if (w.near.size() >= 2) {
     for (Index i = 0; i < n; ++i) {
-      if (pinched[static_cast<std::size_t>(i)] || !pinchable(i)) continue;
+      if (w.pinched[static_cast<std::size_t>(i)] || !pinchable(i)) continue;
       const Vec3 x = particles.x.col(i);
-      hits.clear();
-      for (const Near& candidate : near) {
+      w.hits.clear();
+      for (const PinchScratch::Near& candidate : w.near) {
         if (!candidate.box.contains(x)) continue;
         const btCollisionObject* o = objects[candidate.object];
-        Hit hit{o, 0.0, Vec3::Zero()};
-        if (admits(i, o) && distance(i, o, reach, hit.phi, hit.normal)) hits.push_back(hit);
+        const btBroadphaseProxy* proxy = o->getBroadphaseHandle();
+        if (proxy && !geometry.collides(i, static_cast<std::uint32_t>(proxy->m_collisionFilterGroup),
+                                        static_cast<std::uint32_t>(proxy->m_collisionFilterMask)))
+          continue;
+        PinchScratch::Hit hit{o, 0.0, Vec3::Zero()};
+        if (near_node(i, o, reach, hit.phi, hit.normal)) w.hits.push_back(hit);
       }
       double best = kInfinity;
       Pinch pinch;
-      for (std::size_t a = 0; a < hits.size(); ++a)
-        for (std::size_t b = a + 1; b < hits.size(); ++b)
-          if (hits[a].normal.dot(hits[b].normal) < -0.5 && hits[a].phi + hits[b].phi < best) {
-            best = hits[a].phi + hits[b].phi;
-            pinch.object[0] = hits[a].object;
-            pinch.object[1] = hits[b].object;
+      for (std::size_t a = 0; a < w.hits.size(); ++a)
+        for (std::size_t b = a + 1; b < w.hits.size(); ++b)
+          if (w.hits[a].normal.dot(w.hits[b].normal) < -0.5 && w.hits[a].phi + w.hits[b].phi < best) {
+            best = w.hits[a].phi + w.hits[b].phi;
+            pinch.object[0] = w.hits[a].object;
+            pinch.object[1] = w.hits[b].object;
           }
       if (best == kInfinity) continue;
       pinch.node = i;
-      added.push_back(pinch);
+      w.added.push_back(pinch);
     }
   }
-  if (!removed.empty()) m_system.remove_particles(removed);
-  for (Pinch& p : added) {
+  if (!w.removed.empty()) m_system.remove_particles(w.removed);
+  for (Pinch& p : w.added) {
     const Index node = p.node;
     for (Index& d : p.duplicate) {
       d = m_system.add_particle(m_system.particles().x.col(node), m_system.particles().v.col(node),
@@ -819,11 +806,19 @@ void Coupling::update_pinches() {
       binding.stiffness = m_pinch_stiffness;
       m_system.add_soft_binding(binding);
     }
-    kept.push_back(p);
+    w.kept.push_back(p);
   }
-  std::sort(kept.begin(), kept.end(), [](const Pinch& a, const Pinch& b) { return a.node < b.node; });
-  m_pinches = std::move(kept);
-  collided(m_pinches);
+  std::sort(w.kept.begin(), w.kept.end(), [](const Pinch& a, const Pinch& b) { return a.node < b.node; });
+  std::swap(m_pinches, w.kept);
+  // The collision filters: each duplicate meets its own object only, the node passes both.
+  w.only.clear();
+  w.passes.clear();
+  for (const Pinch& p : m_pinches)
+    for (int k = 0; k < 2; ++k) {
+      w.only.emplace_back(p.duplicate[k], p.object[k]);
+      w.passes.emplace_back(p.node, p.object[k]);
+    }
+  m_collisions->set_pinches(w.only, w.passes);
 }
 
 void Coupling::find_tied_particles() {

@@ -101,7 +101,7 @@ class BulletCollisions final : public CollisionSource {
   /// object alone (a pinched node's duplicate); a pair in `passes` lets the particle through that
   /// object (the pinched node itself, which its duplicates hold). The coupling sets them every tick.
   using ObjectPairs = std::vector<std::pair<Index, const btCollisionObject*>>;
-  void set_pinches(ObjectPairs only, ObjectPairs passes);
+  void set_pinches(const ObjectPairs& only, const ObjectPairs& passes);
   /// Whether the pinches let particle i meet object o.
   bool pinch_admits(Index i, const btCollisionObject* o) const;
 

@@ -310,6 +310,28 @@ class Coupling {
   bool m_pinching = false;
   double m_pinch_stiffness = 10.0;
   std::vector<Pinch> m_pinches;
+  // update_pinches' scratch (kept: no allocation per tick once sized): the objects near the free
+  // nodes with their grown boxes, the world's objects sorted by address, each particle's soft-binding
+  // target, the pinches kept and added, the duplicates released, and the filters handed to the
+  // collisions.
+  struct PinchScratch {
+    struct Near {
+      int object;
+      Eigen::AlignedBox3d box;
+    };
+    struct Hit {
+      const btCollisionObject* object;
+      double phi;
+      Vec3 normal;
+    };
+    std::vector<Near> near;
+    std::vector<Hit> hits;
+    std::vector<const btCollisionObject*> present;
+    std::vector<Index> target_of, removed;
+    std::vector<std::uint8_t> pinched;
+    std::vector<Pinch> kept, added;
+    std::vector<std::pair<Index, const btCollisionObject*>> only, passes;
+  } m_pinch_scratch;
   Vectors3 m_tick_start_x, m_tick_start_v;  // the deformables at the tick's start (restored if it throws)
   RigidBodyParticles m_tick_start_bodies;
   void (*m_app_pre_tick)(btDynamicsWorld*, btScalar) = nullptr;
