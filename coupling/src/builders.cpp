@@ -184,4 +184,53 @@ std::vector<Index> add_volume(System& system, const Vectors3& vertices, const st
   return particle;
 }
 
+EmbeddedVolume add_embedded_volume(System& system, const Vectors3& surface_vertices,
+                                   const std::vector<std::array<Index, 3>>& triangles, double spacing,
+                                   const VolumeMaterial& m) {
+  if (!(std::isfinite(m.density) && m.density > 0)) fail("embedded volume: density ", m.density, " must be positive");
+  EmbeddedVolume out;
+  out.embedding = bcc_lattice(surface_vertices, triangles, spacing);
+  const EmbeddedLattice& lattice = out.embedding;
+  const Index count = lattice.vertices.cols();
+  std::vector<double> mass(static_cast<std::size_t>(count), 0.0);
+  for (std::size_t t = 0; t < lattice.tets.size(); ++t) {
+    const auto& tet = lattice.tets[t];
+    Mat3 e;
+    e << lattice.vertices.col(tet[1]) - lattice.vertices.col(tet[0]),
+        lattice.vertices.col(tet[2]) - lattice.vertices.col(tet[0]),
+        lattice.vertices.col(tet[3]) - lattice.vertices.col(tet[0]);
+    const double material = m.density * e.determinant() / 6.0 * lattice.fill[t];
+    for (Index v : tet) mass[static_cast<std::size_t>(v)] += material / 4.0;
+  }
+  out.lattice.resize(static_cast<std::size_t>(count));
+  for (Index v = 0; v < count; ++v)
+    out.lattice[static_cast<std::size_t>(v)] =
+        system.add_particle(lattice.vertices.col(v), Vec3::Zero(), mass[static_cast<std::size_t>(v)]);
+  std::vector<CorotatedTets::Tet> mapped;
+  mapped.reserve(lattice.tets.size());
+  for (const auto& t : lattice.tets)
+    mapped.push_back({out.lattice[static_cast<std::size_t>(t[0])], out.lattice[static_cast<std::size_t>(t[1])],
+                      out.lattice[static_cast<std::size_t>(t[2])], out.lattice[static_cast<std::size_t>(t[3])]});
+  CorotatedTetsSettings settings;
+  settings.young_modulus = m.young_modulus;
+  settings.poisson_ratio = m.poisson_ratio;
+  settings.beta = m.damping;
+  settings.volume_fraction = lattice.fill;
+  system.add_force(std::make_unique<CorotatedTets>(mapped, system.particles().x, settings));
+  system.add_collision_surface(boundary_triangles(lattice.tets, out.lattice));
+  out.surface.resize(static_cast<std::size_t>(surface_vertices.cols()));
+  for (Index v = 0; v < surface_vertices.cols(); ++v) {
+    const auto& host = mapped[static_cast<std::size_t>(lattice.host[static_cast<std::size_t>(v)])];
+    const auto& w = lattice.weights[static_cast<std::size_t>(v)];
+    // At W x_parents, which is the vertex to round-off, so that the binding moves nothing at set-up.
+    Vec3 x = Vec3::Zero();
+    for (int k = 0; k < 4; ++k)
+      x += w[static_cast<std::size_t>(k)] * system.particles().x.col(host[static_cast<std::size_t>(k)]);
+    const Index p = system.add_particle(x, Vec3::Zero(), 0.0);
+    system.bind_linear(p, host, w);
+    out.surface[static_cast<std::size_t>(v)] = p;
+  }
+  return out;
+}
+
 }  // namespace sinew

@@ -2,6 +2,7 @@
 // mesh. Each adds particles with lumped masses and only the forces its material asks for.
 #pragma once
 
+#include "sinew/lattice.hpp"
 #include "sinew/system.hpp"
 
 #include <array>
@@ -49,6 +50,23 @@ struct VolumeMaterial {
 };
 std::vector<Index> add_volume(System& system, const Vectors3& vertices, const std::vector<std::array<Index, 4>>& tets,
                               const VolumeMaterial& material);
+
+/// A soft volume from any closed surface (Sifakis et al. 2007, section 2): a BCC lattice of cells of
+/// edge `spacing` around it (bcc_lattice), one particle per lattice node with the mass of the
+/// material its tets hold (density x volume x fill, a quarter to each node), corotated linear FEM
+/// scaled by each tet's fill (CorotatedTetsSettings::volume_fraction), and one particle per surface
+/// vertex, hard-bound to the nodes of the tet that holds it by its barycentric weights (x = W x_parents;
+/// massless, so the lattice carries all the mass). The lattice's boundary faces are the collision
+/// surface; the embedded surface is what a picture draws. Throws sinew::Error naming the problem
+/// (bcc_lattice's, or the material's).
+struct EmbeddedVolume {
+  std::vector<Index> lattice;  ///< particle of each lattice node (embedding.vertices' columns)
+  std::vector<Index> surface;  ///< particle of each surface vertex
+  EmbeddedLattice embedding;   ///< the lattice at rest, its tets' fills, each vertex's host and weights
+};
+EmbeddedVolume add_embedded_volume(System& system, const Vectors3& surface_vertices,
+                                   const std::vector<std::array<Index, 3>>& triangles, double spacing,
+                                   const VolumeMaterial& material);
 
 struct ClothGrid {
   int nx = 0, ny = 0;

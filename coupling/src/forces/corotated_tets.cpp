@@ -78,6 +78,12 @@ CorotatedTets::CorotatedTets(std::vector<Tet> tets, const Vectors3& rest_x, cons
 
   const Index n = rest_x.cols();
   const std::size_t count = m_tets.size();
+  const std::vector<double>& fraction = m_settings.volume_fraction;
+  if (!fraction.empty() && fraction.size() != count)
+    fail(kName, ": volume_fraction has ", fraction.size(), " entries for ", count, " tets");
+  for (std::size_t e = 0; e < fraction.size(); ++e)
+    if (!(fraction[e] > 0.0 && fraction[e] <= 1.0))
+      fail(kName, ": tet ", e, " has volume_fraction ", fraction[e], ", expected in (0, 1]");
   m_dm_inv.resize(count);
   m_volume.resize(count);
   m_dt_weights.resize(count);
@@ -100,11 +106,13 @@ CorotatedTets::CorotatedTets(std::vector<Tet> tets, const Vectors3& rest_x, cons
     if (volume < -threshold) fail("tet ", e, " is inverted (volume ", volume, ")");
     if (!(volume > threshold)) fail("tet ", e, " is degenerate (volume ", volume, ")");
     m_dm_inv[e] = dm.inverse();
-    m_volume[e] = volume;
+    const double material = volume * (fraction.empty() ? 1.0 : fraction[e]);
+    m_volume[e] = material;
     m_state[e] = {Mat3::Identity(), Mat3::Identity(), Mat3::Identity(), Vec3::Ones(), Vec3::Zero()};
     const Mat3& g = m_dm_inv[e];  // rows 0-2: shape-function gradients of vertices 1-3
-    m_dt_weights[e] = {volume * modulus * g.colwise().sum().squaredNorm(), volume * modulus * g.row(0).squaredNorm(),
-                       volume * modulus * g.row(1).squaredNorm(), volume * modulus * g.row(2).squaredNorm()};
+    m_dt_weights[e] = {material * modulus * g.colwise().sum().squaredNorm(),
+                       material * modulus * g.row(0).squaredNorm(), material * modulus * g.row(1).squaredNorm(),
+                       material * modulus * g.row(2).squaredNorm()};
   }
   detail::Incidence incidence = detail::Incidence::build(m_tets, detail::index_span(m_tets));
   m_incidence_offsets = std::move(incidence.offsets);
@@ -208,7 +216,22 @@ double CorotatedTets::stable_dt(const VectorXd& m_eff) const {
 }
 
 Index CorotatedTets::remove_elements_touching(std::span<const std::uint8_t> removed) {
-  return detail::rebuild_without(*this, m_tets, removed, m_rest_x, m_settings);
+  if (m_settings.volume_fraction.empty()) return detail::rebuild_without(*this, m_tets, removed, m_rest_x, m_settings);
+  // The kept tets keep their fractions.
+  auto gone = [&](Index i) {
+    return i < static_cast<Index>(removed.size()) && removed[static_cast<std::size_t>(i)] != 0;
+  };
+  std::vector<Tet> kept;
+  CorotatedTetsSettings settings = m_settings;
+  settings.volume_fraction.clear();
+  for (std::size_t e = 0; e < m_tets.size(); ++e)
+    if (std::none_of(m_tets[e].begin(), m_tets[e].end(), gone)) {
+      kept.push_back(m_tets[e]);
+      settings.volume_fraction.push_back(m_settings.volume_fraction[e]);
+    }
+  const auto dropped = static_cast<Index>(m_tets.size() - kept.size());
+  if (dropped > 0) *this = CorotatedTets(std::move(kept), m_rest_x, settings);
+  return dropped;
 }
 
 }  // namespace sinew

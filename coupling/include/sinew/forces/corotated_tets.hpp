@@ -12,6 +12,11 @@ struct CorotatedTetsSettings {
   double young_modulus = 1.0e5;  ///< E [Pa]; finite, > 0
   double poisson_ratio = 0.3;    ///< nu, in (-1, 0.5)
   double beta = 0.0;             ///< stiffness-proportional (strain-rate) damping time [s]; finite, >= 0
+  /// Per tet, the part of its volume that is material, in (0, 1]; empty: all of it. A lattice tet
+  /// that a surface cuts (bcc_lattice) holds fill V_e of material: its energy, forces, differentials
+  /// and damping are scaled by fill, as its lumped mass is, so the body is as stiff and as heavy as
+  /// its material and the stable step is the whole tet's.
+  std::vector<double> volume_fraction;
 };
 
 class CorotatedTets final : public Force, public ImplicitBlocks {
@@ -39,6 +44,7 @@ class CorotatedTets final : public Force, public ImplicitBlocks {
   void add_diagonal(double b, VectorXd& diag) const override;
 
   const std::vector<Tet>& tets() const { return m_tets; }
+  /// Each tet's material volume at rest: its volume times its volume_fraction [m^3].
   const std::vector<double>& rest_volumes() const { return m_volume; }
   const CorotatedTetsSettings& settings() const { return m_settings; }
   double mu() const { return m_mu; }          ///< Lame shear modulus [Pa]
