@@ -483,3 +483,71 @@ INSTANTIATE_TEST_SUITE_P(Scenes, ContactDemos, ::testing::Values("drape", "stack
 
 }  // namespace
 }  // namespace sinew
+
+namespace sinew {
+namespace {
+
+// Issue 21's squeeze: a soft ball embedded in a BCC lattice, squeezed between two 1 kg Bullet panels
+// pushed together by 20 N each. Driven by constant forces, its energy less the forces' work never
+// grows; the panels close by centimetres and come to rest where the ball's contact forces balance
+// the push, symmetric about the ball; no lattice node enters a panel.
+TEST(SqueezeDemo, PanelsPushedTogetherSqueezeTheBallAndComeToRest) {
+  auto scene = make_bullet_scene("squeeze");
+  const btRigidBody* left = scene->bullet().bodies()[1];
+  const btRigidBody* right = scene->bullet().bodies()[2];
+  const double push = 20.0, half_width = 0.01, thickness = 0.01;
+  const double left_0 = left->getCenterOfMassPosition().x(), right_0 = right->getCenterOfMassPosition().x();
+  const double energy_0 = scene->total_energy();
+  const System& s = scene->system();
+  double gain = -kInfinity, deepest = -kInfinity, right_at_3s = 0.0;
+  for (int f = 1; f <= 240; ++f) {
+    scene->advance(1.0 / 60, scene->default_substeps());
+    const double l = left->getCenterOfMassPosition().x(), r = right->getCenterOfMassPosition().x();
+    const double work = push * ((l - left_0) + (right_0 - r));
+    gain = std::max(gain, scene->total_energy() - work - energy_0);
+    for (Index i = 0; i < s.particles().size(); ++i)
+      if (s.particles().mass[i] > 0.0) {
+        const double x = s.particles().x(0, i);
+        deepest = std::max({deepest, x - (r - half_width), (l + half_width) - x});
+      }
+    if (f == 180) right_at_3s = r;
+  }
+  const double l = left->getCenterOfMassPosition().x(), r = right->getCenterOfMassPosition().x();
+  EXPECT_LT(gain, 1e-9 * energy_0);
+  EXPECT_LT(r - right_0, -0.03);                      // squeezed by centimetres
+  EXPECT_NEAR(l, -r, 1e-4);                           // symmetric (to 2 um here)
+  EXPECT_LT(std::abs(r - right_at_3s), 1e-4);         // at rest over the last second
+  EXPECT_LT(deepest, -0.5 * thickness);               // the nodes keep (about) the thickness off
+  EXPECT_GE(s.particles().x.row(1).minCoeff(), 0.0);  // and off the ground
+  EXPECT_TRUE(s.particles().x.allFinite());
+}
+
+}  // namespace
+}  // namespace sinew
+
+namespace sinew {
+namespace {
+
+// A closed surface written as STL and read back through assimp (float positions, coincident
+// vertices joined) becomes a volume: its lattice's material is the enclosed volume to the
+// quadrature's accuracy, and every vertex is embedded at its place.
+TEST(MeshScenes, AClosedSurfaceReadThroughAssimpBecomesAnEmbeddedVolume) {
+  const scenes::ClosedSurface sphere = scenes::sphere_surface(3, 0.25, Vec3(0.02, 0.5, -0.01));
+  const std::string path = (std::filesystem::temp_directory_path() / "sinew_closed_sphere.stl").string();
+  mesh::save_triangle_meshes(path, {mesh::TriangleMesh{sphere.vertices, sphere.triangles}}, {"sphere"});
+  const mesh::TriangleMesh read = mesh::load_triangle_mesh(path);
+  std::filesystem::remove(path);
+  ASSERT_EQ(read.vertices.cols(), sphere.vertices.cols());  // welded back into one closed surface
+  System system;
+  const scenes::EmbeddedVolume ball =
+      scenes::add_embedded_volume(system, read.vertices, read.triangles, 0.05, scenes::VolumeMaterial{});
+  const double enclosed = SurfaceInside(read.vertices, read.triangles).enclosed_volume();
+  double mass = 0.0;
+  for (Index p : ball.lattice) mass += system.particles().mass[p];
+  EXPECT_NEAR(mass / 1000.0, enclosed, 2e-3 * enclosed);
+  for (std::size_t v = 0; v < ball.surface.size(); ++v)
+    EXPECT_LT((system.particles().x.col(ball.surface[v]) - read.vertices.col(static_cast<Index>(v))).norm(), 1e-12);
+}
+
+}  // namespace
+}  // namespace sinew

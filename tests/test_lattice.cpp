@@ -6,56 +6,21 @@
 #include "sinew/forces/corotated_tets.hpp"
 #include "sinew/lattice.hpp"
 
+#include "cloth.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <map>
 #include <random>
 #include <string>
 
 namespace sinew {
 namespace {
 
-struct Surface {
-  Vectors3 vertices;
-  std::vector<std::array<Index, 3>> triangles;
-};
+using Surface = scenes::ClosedSurface;
 
-// An icosahedron subdivided `levels` times, its vertices on the sphere of `radius` about `centre`,
-// triangles oriented outwards.
 Surface icosphere(int levels, double radius, const Vec3& centre = Vec3::Zero()) {
-  const double t = (1.0 + std::sqrt(5.0)) / 2.0;
-  std::vector<Vec3> v = {{-1, t, 0},  {1, t, 0},  {-1, -t, 0}, {1, -t, 0}, {0, -1, t},  {0, 1, t},
-                         {0, -1, -t}, {0, 1, -t}, {t, 0, -1},  {t, 0, 1},  {-t, 0, -1}, {-t, 0, 1}};
-  std::vector<std::array<Index, 3>> f = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
-                                         {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
-                                         {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
-                                         {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
-  for (Vec3& p : v) p.normalize();
-  for (int l = 0; l < levels; ++l) {
-    std::map<std::pair<Index, Index>, Index> mid;
-    auto midpoint = [&](Index a, Index b) {
-      const auto key = std::make_pair(std::min(a, b), std::max(a, b));
-      const auto found = mid.find(key);
-      if (found != mid.end()) return found->second;
-      v.push_back((v[static_cast<std::size_t>(a)] + v[static_cast<std::size_t>(b)]).normalized());
-      return mid[key] = static_cast<Index>(v.size() - 1);
-    };
-    std::vector<std::array<Index, 3>> g;
-    for (const auto& tri : f) {
-      const Index a = midpoint(tri[0], tri[1]), b = midpoint(tri[1], tri[2]), c = midpoint(tri[2], tri[0]);
-      g.push_back({tri[0], a, c});
-      g.push_back({tri[1], b, a});
-      g.push_back({tri[2], c, b});
-      g.push_back({a, b, c});
-    }
-    f = std::move(g);
-  }
-  Surface s;
-  s.vertices.resize(3, static_cast<Index>(v.size()));
-  for (std::size_t i = 0; i < v.size(); ++i) s.vertices.col(static_cast<Index>(i)) = centre + radius * v[i];
-  s.triangles = std::move(f);
-  return s;
+  return scenes::sphere_surface(levels, radius, centre);
 }
 
 // The closed surface of the box [lo, hi], two triangles a face.
@@ -209,6 +174,49 @@ TEST(BccLattice, RefusesABadSpacingByName) {
       ADD_FAILURE() << "accepted spacing " << spacing;
     } catch (const Error& e) {
       EXPECT_NE(std::string(e.what()).find("spacing"), std::string::npos) << e.what();
+    }
+  }
+}
+
+// A tet holding a part f of material: energy and forces are f times the whole tet's, at any
+// deformation; fractions outside (0, 1] or of the wrong count are refused by name.
+TEST(CorotatedTetsFraction, ScalesEnergyAndForcesByTheMaterialItHolds) {
+  Vectors3 rest(3, 5);
+  rest << 0, 1, 0, 0, 1, 0, 0, 1, 0, 1, 0, 0, 0, 1, 1;
+  const std::vector<CorotatedTets::Tet> tets = {{0, 1, 2, 3}, {1, 2, 3, 4}};
+  CorotatedTetsSettings whole, part;
+  part.volume_fraction = {0.25, 0.6};
+  for (const auto& t : tets) ASSERT_GT(tet_volume(rest, t), 0.0);
+  Vectors3 x = rest;
+  x.col(4) += Vec3(0.2, -0.1, 0.3);
+  x.col(0) += Vec3(-0.05, 0.02, 0.0);
+  // Each tet alone, whole, against the two with their fractions.
+  double energy = 0.0;
+  Vectors3 f = Vectors3::Zero(3, 5);
+  for (std::size_t e = 0; e < tets.size(); ++e) {
+    CorotatedTets one({tets[e]}, rest, whole);
+    one.update_position_state(x);
+    energy += part.volume_fraction[e] * one.potential_energy(x);
+    Vectors3 fe = Vectors3::Zero(3, 5);
+    one.add_elastic_forces(x, fe);
+    f += part.volume_fraction[e] * fe;
+  }
+  CorotatedTets both(tets, rest, part);
+  both.update_position_state(x);
+  Vectors3 f_both = Vectors3::Zero(3, 5);
+  both.add_elastic_forces(x, f_both);
+  EXPECT_GT(energy, 0.0);
+  EXPECT_NEAR(both.potential_energy(x), energy, 1e-12 * energy);
+  EXPECT_LT((f_both - f).norm(), 1e-12 * f.norm());
+  for (const std::vector<double>& bad : {std::vector<double>{0.0, 1.0}, std::vector<double>{0.5, 1.5},
+                                         std::vector<double>{0.5, std::nan("")}, std::vector<double>{0.5}}) {
+    CorotatedTetsSettings s;
+    s.volume_fraction = bad;
+    try {
+      CorotatedTets t(tets, rest, s);
+      ADD_FAILURE() << "accepted a bad volume_fraction";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("volume_fraction"), std::string::npos) << e.what();
     }
   }
 }

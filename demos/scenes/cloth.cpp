@@ -1,5 +1,8 @@
 #include "cloth.hpp"
 
+#include <algorithm>
+#include <cmath>
+
 namespace sinew::scenes {
 
 HangingCloth add_hanging_cloth(System& system, const HangingClothSettings& s) {
@@ -34,6 +37,51 @@ HangingCloth add_hanging_cloth(System& system, const HangingClothSettings& s) {
   }
   for (Index node : scene.cloth.nodes) system.particles().v.col(node) = s.initial_speed * normal;
   return scene;
+}
+
+ClosedSurface sphere_surface(int levels, double radius, const Vec3& centre) {
+  if (levels < 0 || levels > 8) fail("sphere surface: levels ", levels, " must be in [0, 8]");
+  if (!(std::isfinite(radius) && radius > 0.0)) fail("sphere surface: radius ", radius, " must be positive and finite");
+  const double t = (1.0 + std::sqrt(5.0)) / 2.0;
+  std::vector<Vec3> v = {{-1, t, 0},  {1, t, 0},  {-1, -t, 0}, {1, -t, 0}, {0, -1, t},  {0, 1, t},
+                         {0, -1, -t}, {0, 1, -t}, {t, 0, -1},  {t, 0, 1},  {-t, 0, -1}, {-t, 0, 1}};
+  std::vector<std::array<Index, 3>> f = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
+                                         {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
+                                         {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
+                                         {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
+  for (Vec3& p : v) p.normalize();
+  for (int l = 0; l < levels; ++l) {
+    // Each edge's midpoint once: edges sorted by their ends, looked up by binary search.
+    std::vector<std::array<Index, 3>> edges;  // (lower, higher, new vertex)
+    for (const auto& tri : f)
+      for (int e = 0; e < 3; ++e)
+        edges.push_back({std::min(tri[e], tri[(e + 1) % 3]), std::max(tri[e], tri[(e + 1) % 3]), -1});
+    std::sort(edges.begin(), edges.end());
+    edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
+    for (auto& e : edges) {
+      v.push_back((v[static_cast<std::size_t>(e[0])] + v[static_cast<std::size_t>(e[1])]).normalized());
+      e[2] = static_cast<Index>(v.size() - 1);
+    }
+    const auto midpoint = [&](Index a, Index b) {
+      const std::array<Index, 3> key{std::min(a, b), std::max(a, b), -1};
+      return std::lower_bound(edges.begin(), edges.end(), key)->at(2);
+    };
+    std::vector<std::array<Index, 3>> g;
+    g.reserve(4 * f.size());
+    for (const auto& tri : f) {
+      const Index a = midpoint(tri[0], tri[1]), b = midpoint(tri[1], tri[2]), c = midpoint(tri[2], tri[0]);
+      g.push_back({tri[0], a, c});
+      g.push_back({tri[1], b, a});
+      g.push_back({tri[2], c, b});
+      g.push_back({a, b, c});
+    }
+    f = std::move(g);
+  }
+  ClosedSurface s;
+  s.vertices.resize(3, static_cast<Index>(v.size()));
+  for (std::size_t i = 0; i < v.size(); ++i) s.vertices.col(static_cast<Index>(i)) = centre + radius * v[i];
+  s.triangles = std::move(f);
+  return s;
 }
 
 }  // namespace sinew::scenes

@@ -11,10 +11,12 @@ namespace sinew::scenes {
 // The builders live in the library (sinew/builders.hpp); scenes use them by their short names.
 using sinew::add_cloth_grid;
 using sinew::add_cloth_mesh;
+using sinew::add_embedded_volume;
 using sinew::add_volume;
 using sinew::ClothGrid;
 using sinew::ClothGridSettings;
 using sinew::ClothMaterial;
+using sinew::EmbeddedVolume;
 using sinew::VolumeMaterial;
 
 /// The core scene of the benchmark and the core demo: a cloth hung by its top row from a dynamic
@@ -34,5 +36,15 @@ struct HangingCloth {
 };
 
 HangingCloth add_hanging_cloth(System& system, const HangingClothSettings& settings);
+
+/// A closed triangle surface: vertices 3 x V, triangles indexing them, oriented outwards.
+struct ClosedSurface {
+  Vectors3 vertices;
+  std::vector<std::array<Index, 3>> triangles;
+};
+
+/// A sphere of `radius` [m] about `centre`: an icosahedron whose faces are split in four `levels`
+/// times, the new vertices pushed onto the sphere (20 * 4^levels triangles).
+ClosedSurface sphere_surface(int levels, double radius, const Vec3& centre = Vec3::Zero());
 
 }  // namespace sinew::scenes
