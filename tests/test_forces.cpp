@@ -13,6 +13,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <functional>
 #include <limits>
 #include <memory>
@@ -1098,6 +1099,27 @@ TEST(CorotatedTets, DifferentialMatchesFiniteDifferencesWhenInverted) {
   tets.update_position_state(x);
   expect_force_is_negative_energy_gradient(tets, x, 1.0);
   expect_differential_matches_finite_differences(tets, x, 1.0, rng);
+}
+
+// Each tet keeps the SVD of the F it last saw and reuses it for the same F: forces and energy read
+// through that cache are the bits a fresh force gives, whatever positions the state was taken at,
+// and so is a rigid translation (the same F from other positions).
+TEST(CorotatedTets, CachedDecompositionGivesTheBitsOfAFreshOne) {
+  std::mt19937 rng(35);
+  const Block block(2);
+  CorotatedTets cached = make_tets(block);
+  const Vectors3 x = block.deformed(rng), y = block.deformed(rng);
+  const Vectors3 moved = x.colwise() + Vec3(0.25, -0.5, 1.0);
+  for (const Vectors3* state : {&y, &x}) {
+    cached.update_position_state(*state);
+    for (const Vectors3* at : {&x, &y, &moved}) {
+      const CorotatedTets fresh = make_tets(block);
+      const Vectors3 f = elastic_forces(cached, *at), g = elastic_forces(fresh, *at);
+      EXPECT_EQ(0, std::memcmp(f.data(), g.data(), sizeof(double) * std::size_t(f.size())));
+      const double e = cached.potential_energy(*at), e_fresh = fresh.potential_energy(*at);
+      EXPECT_EQ(0, std::memcmp(&e, &e_fresh, sizeof e));
+    }
+  }
 }
 
 TEST(CorotatedTets, InvertedTetForcePushesTowardUninversion) {

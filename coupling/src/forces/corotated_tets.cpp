@@ -30,6 +30,8 @@
 #include "signed_svd.hpp"
 
 #include <algorithm>
+#include <cstring>
+#include <limits>
 #include <utility>
 
 namespace sinew {
@@ -56,6 +58,17 @@ void scatter_h(const std::array<Index, 4>& v, const Mat3& h, Vectors3& f) {
   f.col(v[1]) += h.col(0);
   f.col(v[2]) += h.col(1);
   f.col(v[3]) += h.col(2);
+}
+
+// Equal to the bit: F == G would take -0 for +0, whose SVDs may differ in sign choices.
+bool same_bits(const Mat3& F, const Mat3& G) { return std::memcmp(F.data(), G.data(), sizeof(double) * 9) == 0; }
+
+// P = U P^ V^T, evaluated one way for every caller: Eigen evaluates the same product with different
+// roundings when it is assigned to an existing matrix rather than constructed, and cached and fresh
+// stresses must agree to the bit (runs are compared by state hashes).
+Mat3 first_piola(const Mat3& U, const Vec3& phat, const Mat3& V) {
+  Mat3 P = U * phat.asDiagonal() * V.transpose();
+  return P;
 }
 
 Vec3 diagonal_stress(const Vec3& sigma, double mu, double lambda) {
@@ -108,7 +121,12 @@ CorotatedTets::CorotatedTets(std::vector<Tet> tets, const Vectors3& rest_x, cons
     m_dm_inv[e] = dm.inverse();
     const double material = volume * (fraction.empty() ? 1.0 : fraction[e]);
     m_volume[e] = material;
-    m_state[e] = {Mat3::Identity(), Mat3::Identity(), Mat3::Identity(), Vec3::Ones(), Vec3::Zero()};
+    m_state[e] = {Mat3::Constant(std::numeric_limits<double>::quiet_NaN()),
+                  Mat3::Identity(),
+                  Mat3::Identity(),
+                  Mat3::Identity(),
+                  Vec3::Ones(),
+                  Vec3::Zero()};
     const Mat3& g = m_dm_inv[e];  // rows 0-2: shape-function gradients of vertices 1-3
     m_dt_weights[e] = {material * modulus * g.colwise().sum().squaredNorm(),
                        material * modulus * g.row(0).squaredNorm(), material * modulus * g.row(1).squaredNorm(),
@@ -123,10 +141,17 @@ void CorotatedTets::validate(Index particle_count) const {
   for (std::size_t e = 0; e < m_tets.size(); ++e) detail::check_element_indices("tet", e, m_tets[e], particle_count);
 }
 
+// The SVD of F is most of this force's cost (three quarters of a soft ball's step), and the step asks
+// for it several times at the same positions (update_position_state, then the forces, the energy
+// checks): each tet keeps the F its state was computed from and reuses it when F is the same to the
+// bit, which gives exactly the bits a new SVD would.
 void CorotatedTets::update_position_state(const Vectors3& x) {
   for (std::size_t e = 0; e < m_tets.size(); ++e) {
-    const detail::SignedSvd svd = detail::signed_svd(edge_matrix(x, m_tets[e]) * m_dm_inv[e]);
+    const Mat3 F = edge_matrix(x, m_tets[e]) * m_dm_inv[e];
     TetState& s = m_state[e];
+    if (same_bits(F, s.F)) continue;
+    const detail::SignedSvd svd = detail::signed_svd(F);
+    s.F = F;
     s.U = svd.U;
     s.V = svd.V;
     s.R = svd.U * svd.V.transpose();
@@ -138,7 +163,8 @@ void CorotatedTets::update_position_state(const Vectors3& x) {
 double CorotatedTets::potential_energy(const Vectors3& x) const {
   double energy = 0.0;
   for (std::size_t e = 0; e < m_tets.size(); ++e) {
-    const Vec3 sigma = detail::signed_svd(edge_matrix(x, m_tets[e]) * m_dm_inv[e]).sigma;
+    const Mat3 F = edge_matrix(x, m_tets[e]) * m_dm_inv[e];
+    const Vec3 sigma = same_bits(F, m_state[e].F) ? m_state[e].sigma : detail::signed_svd(F).sigma;
     const double volumetric = sigma.sum() - 3.0;
     energy += m_volume[e] * (m_mu * (sigma.array() - 1.0).square().sum() + 0.5 * m_lambda * volumetric * volumetric);
   }
@@ -147,8 +173,12 @@ double CorotatedTets::potential_energy(const Vectors3& x) const {
 
 void CorotatedTets::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
   for (std::size_t e = 0; e < m_tets.size(); ++e) {
-    const detail::SignedSvd svd = detail::signed_svd(edge_matrix(x, m_tets[e]) * m_dm_inv[e]);
-    const Mat3 P = svd.U * diagonal_stress(svd.sigma, m_mu, m_lambda).asDiagonal() * svd.V.transpose();
+    const Mat3 F = edge_matrix(x, m_tets[e]) * m_dm_inv[e];
+    const TetState& s = m_state[e];
+    const Mat3 P = same_bits(F, s.F) ? first_piola(s.U, s.phat, s.V) : [&] {
+      const detail::SignedSvd svd = detail::signed_svd(F);
+      return first_piola(svd.U, diagonal_stress(svd.sigma, m_mu, m_lambda), svd.V);
+    }();
     scatter_h(m_tets[e], (-m_volume[e]) * P * m_dm_inv[e].transpose(), f);
   }
 }

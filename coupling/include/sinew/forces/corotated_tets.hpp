@@ -16,7 +16,7 @@ struct CorotatedTetsSettings {
   /// that a surface cuts (bcc_lattice) holds fill V_e of material: its energy, forces, differentials
   /// and damping are scaled by fill, as its lumped mass is, so the body is as stiff and as heavy as
   /// its material and the stable step is the whole tet's.
-  std::vector<double> volume_fraction;
+  std::vector<double> volume_fraction{};
 };
 
 class CorotatedTets final : public Force, public ImplicitBlocks {
@@ -53,6 +53,9 @@ class CorotatedTets final : public Force, public ImplicitBlocks {
  private:
   /// Signed SVD of F and what the differential and damping need from it.
   struct TetState {
+    /// The deformation gradient the rest was computed from (NaN until the first update): a force or
+    /// energy asked at positions giving the same F, bit for bit, reuses the SVD (same bits as redoing it).
+    Mat3 F;
     Mat3 U;      ///< left rotation
     Mat3 V;      ///< right rotation
     Mat3 R;      ///< U V^T
