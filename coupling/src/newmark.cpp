@@ -680,6 +680,10 @@ void Newmark::process_collisions(const StepModel& s, double dt) {
     context.m_constraints = &constraints;
     context.m_bodies = &s.bodies;
     context.m_body_L = &m_body_L_n;
+    context.m_particles = &p;
+    context.m_hard = &s.hard;
+    context.m_soft = &s.soft;
+    context.m_effective_mass = &s.effective_mass;
     for (const auto& source : s.collision_sources) {
       const std::size_t first = constraints.size();
       source->process(context);

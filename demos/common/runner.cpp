@@ -84,6 +84,7 @@ int run_headless(const Program& program, const Options& o, const RunHooks& hooks
                     worst_intersections, worst_intersections_frame);
       stats += text;
     }
+    stats += scene->json_fields();
     std::printf(
         "{\"scene\": \"%s\", \"particles\": %lld, \"rigid_bodies\": %lld, \"frames\": %d, \"frame_dt\": %.6g, "
         "\"ticks_per_frame\": %d, "

@@ -60,6 +60,8 @@ class Scene {
   virtual const StepStats* total_stats() const { return nullptr; }
   /// The scene's deformable system, where it has one the programs may set up (--fixed-scheme).
   virtual System* deformable_system() { return nullptr; }
+  /// The scene's own figures for the programs' JSON line, as `"key": value, ` fields (empty: none).
+  virtual std::string json_fields() { return {}; }
 };
 
 using SceneFactory = std::function<std::unique_ptr<Scene>(const SceneParams&)>;

@@ -439,6 +439,9 @@ void BulletCollisions::process(CollisionContext& c) {
     const ParticleKind kind = particles.kind[i];
     if (kind != ParticleKind::free && kind != ParticleKind::soft_spring && kind != ParticleKind::soft_synchronized)
       continue;
+    // A synchronized particle is tested where its target is now, after the contacts before it moved
+    // the target's parents, and what this contact does to it goes to them at once (Gauss-Seidel).
+    const bool synchronized = kind == ParticleKind::soft_synchronized && c.synchronize(i);
     double phi;
     Vec3 normal;
     const int hit = closest_object(c, i, phi, normal);
@@ -474,8 +477,19 @@ void BulletCollisions::process(CollisionContext& c) {
     v.col(i) = stop_approach(v_old, v_body, normal, m_settings.friction);
     if (prescribed) {
       // A prescribed surface also holds the particle in step 4 (a projection: its reaction goes to
-      // a body of infinite mass, so no momentum is lost).
-      if (is_dynamic(kind)) c.add_constraint(CollisionConstraint::point(i, normal, normal.dot(v_body)));
+      // a body of infinite mass, so no momentum is lost); a synchronized particle, through its
+      // target's stencil.
+      if (is_dynamic(kind)) {
+        c.add_constraint(CollisionConstraint::point(i, normal, normal.dot(v_body)));
+      } else if (synchronized) {
+        CollisionConstraint held;
+        if (c.target_stencil(i, held)) {
+          held.normal = normal;
+          held.normal_velocity = normal.dot(v_body);
+          c.add_constraint(held);
+        }
+      }
+      if (synchronized) c.push_drift(i);
       continue;
     }
     // Equal and opposite: the particle's momentum change goes into the dynamic body at the contact.
@@ -483,12 +497,11 @@ void BulletCollisions::process(CollisionContext& c) {
     // the contact at the end of the step instead).
     m_dynamic_contacts.push_back({i, rigid, normal});
     const Vec3 j = particles.mass[i] * (v.col(i) - v_old);
-    if (j.isZero(0.0)) continue;
-    if (particle_body >= 0) {
-      c.apply_body_impulse(particle_body, x.col(i), -j);
-      continue;
+    if (!j.isZero(0.0)) {
+      if (particle_body >= 0) c.apply_body_impulse(particle_body, x.col(i), -j);
+      else push_pending(rigid, arm, j);
     }
-    push_pending(rigid, arm, j);
+    if (synchronized) c.push_drift(i);
   }
   if (m_settings.features) process_features(c);
 }

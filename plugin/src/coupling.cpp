@@ -686,6 +686,173 @@ Index Coupling::attach(Index point, btRigidBody* body, const Vec3& local, double
 // at 2 m/s). Then its duplicates are removed (System::remove_particles: their indices stay
 // reserved). Poses are Bullet's at the tick's start. Cost: one signed distance per node and object
 // whose box, grown by the reach, holds the node.
+// ---- sprinkled collision particles (section 2, figure 3) --------------------------------------
+
+namespace {
+// Per particle: 1 when a linear hard binding holds it (bindings as added, before any set-up).
+std::vector<std::uint8_t> linearly_bound(const LinearBindings& linear, Index particles) {
+  std::vector<std::uint8_t> bound(static_cast<std::size_t>(particles), 0);
+  for (Index k = 0; k < linear.size(); ++k) bound[static_cast<std::size_t>(linear.particle(k))] = 1;
+  return bound;
+}
+}  // namespace
+
+Index Coupling::sprinkle(std::span<const Index> samples, const SprinkleSettings& settings) {
+  const Index set = static_cast<Index>(m_sprinkles.size());
+  if (!m_collisions) fail("sprinkle ", set, ": the coupling has collisions off, so there is nothing to collide with");
+  if (!(std::isfinite(settings.reach) && settings.reach >= 0.0))
+    fail("sprinkle ", set, ": reach ", settings.reach, " must be non-negative and finite");
+  if (!(std::isfinite(settings.linger) && settings.linger >= 0.0))
+    fail("sprinkle ", set, ": linger ", settings.linger, " must be non-negative and finite");
+  if (samples.empty()) fail("sprinkle ", set, ": no samples");
+  const HardBindings& hard = m_system.hard_bindings();
+  const Index n = m_system.particles().size();
+  const std::vector<std::uint8_t> embedded = linearly_bound(hard.linear(), n);
+  for (const Index i : samples) {
+    if (i < 0 || i >= n) fail("sprinkle ", set, ": sample ", i, " does not exist (there are ", n, " particles)");
+    if (!embedded[static_cast<std::size_t>(i)])
+      fail("sprinkle ", set, ": sample ", i, " is not hard-bound to a deformable (bind_linear, add_embedded_point)");
+  }
+  SprinkleSet s;
+  s.samples.assign(samples.begin(), samples.end());
+  s.particle.assign(samples.size(), -1);
+  s.last_near.assign(samples.size(), -kInfinity);
+  s.settings = settings;
+  if (!settings.hosts_collide) {
+    const LinearBindings& linear = hard.linear();
+    std::vector<std::uint8_t> sample(static_cast<std::size_t>(n), 0);
+    for (const Index i : samples) sample[static_cast<std::size_t>(i)] = 1;
+    const CollisionGeometry& geometry = m_system.collision_geometry();
+    for (Index k = 0; k < linear.size(); ++k)
+      if (sample[static_cast<std::size_t>(linear.particle(k))])
+        for (const Index parent : linear.parents(k))
+          m_system.set_collision_filter(parent, geometry.group[static_cast<std::size_t>(parent)], 0);
+  }
+  if (!settings.adaptive)
+    for (std::size_t k = 0; k < s.samples.size(); ++k) s.particle[k] = add_sprinkled(s.samples[k]);
+  m_sprinkles.push_back(std::move(s));
+  return set;
+}
+
+std::span<const Index> Coupling::sprinkled(Index set) const {
+  if (set < 0 || set >= static_cast<Index>(m_sprinkles.size()))
+    fail("sprinkle set ", set, " does not exist (there are ", m_sprinkles.size(), ")");
+  return m_sprinkles[static_cast<std::size_t>(set)].particle;
+}
+
+Index Coupling::sprinkled_count(Index set) const {
+  const std::span<const Index> particles = sprinkled(set);
+  return static_cast<Index>(std::count_if(particles.begin(), particles.end(), [](Index p) { return p >= 0; }));
+}
+
+Index Coupling::add_sprinkled(Index sample) {
+  const Particles& p = m_system.particles();
+  const Index d = m_system.add_particle(p.x.col(sample), p.v.col(sample), 0.0);
+  const CollisionGeometry& geometry = m_system.collision_geometry();
+  m_system.set_collision_filter(d, geometry.group[static_cast<std::size_t>(sample)],
+                                geometry.mask[static_cast<std::size_t>(sample)]);
+  SoftBindingSettings binding;
+  binding.particle = d;
+  binding.target = sample;
+  binding.coupling = SoftCoupling::synchronized;  // mass 0: the sample's effective mass (eq. 4)
+  m_system.add_soft_binding(binding);
+  return d;
+}
+
+// A sample is near when the surface of an object it may collide with (its filter against the object's)
+// is within reach, plus how far the sample and the object's surface can move in the tick (the sample's
+// speed, and the object's speed plus its spin times its bounding radius, times dt): its collision
+// particle is then in place for the step that may meet the object. Samples that were removed or
+// released by the application lose theirs in every set.
+void Coupling::update_sprinkles(double dt) {
+  if (m_sprinkles.empty()) return;
+  const Particles& p = m_system.particles();
+  const std::vector<std::uint8_t> embedded = linearly_bound(m_system.hard_bindings().linear(), p.size());
+  const CollisionGeometry& geometry = m_system.collision_geometry();
+  const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
+  const double now = m_system.time();
+  struct Near {
+    int object;
+    btVector3 lo, hi;
+    double speed;  // bound on the surface's speed [m/s]
+  };
+  std::vector<Near> near;
+  std::vector<Index> removed;
+  std::vector<std::pair<std::size_t, std::size_t>> added;  // (set, sample)
+  for (std::size_t set = 0; set < m_sprinkles.size(); ++set) {
+    SprinkleSet& s = m_sprinkles[set];
+    near.clear();
+    if (s.settings.adaptive) {
+      Eigen::AlignedBox3d box;
+      double fastest = 0.0;
+      for (const Index i : s.samples)
+        if (p.kind[i] != ParticleKind::removed) {
+          box.extend(Vec3(p.x.col(i)));
+          fastest = std::max(fastest, Vec3(p.v.col(i)).norm());
+        }
+      for (int o = 0; o < objects.size() && !box.isEmpty(); ++o) {
+        const btCollisionObject* object = objects[o];
+        if (!object->hasContactResponse()) continue;
+        double speed = 0.0;
+        if (const btRigidBody* body = btRigidBody::upcast(object)) {
+          btVector3 centre;
+          btScalar radius;
+          body->getCollisionShape()->getBoundingSphere(centre, radius);
+          speed = double(body->getLinearVelocity().length() + body->getAngularVelocity().length() * radius);
+        }
+        btVector3 lo, hi;
+        object->getCollisionShape()->getAabb(object->getWorldTransform(), lo, hi);
+        const double pad = s.settings.reach + (fastest + speed) * dt;
+        const Eigen::AlignedBox3d grown(to_eigen(lo) - Vec3::Constant(pad), to_eigen(hi) + Vec3::Constant(pad));
+        if (grown.intersects(box)) near.push_back({o, lo, hi, speed});
+      }
+    }
+    for (std::size_t k = 0; k < s.samples.size(); ++k) {
+      const Index i = s.samples[k];
+      Index& d = s.particle[k];
+      if (d >= 0 && p.kind[d] == ParticleKind::removed) d = -1;  // the application removed it
+      const bool alive = p.kind[i] != ParticleKind::removed && embedded[static_cast<std::size_t>(i)];
+      if (!alive) {
+        if (d >= 0) removed.push_back(d);
+        d = -1;
+        continue;
+      }
+      if (!s.settings.adaptive) continue;
+      const Vec3 x = p.x.col(i);
+      const double sample_speed = Vec3(p.v.col(i)).norm();
+      bool close = false;
+      for (const Near& candidate : near) {
+        const btCollisionObject* object = objects[candidate.object];
+        if (const btBroadphaseProxy* proxy = object->getBroadphaseHandle())
+          if (!geometry.collides(i, static_cast<std::uint32_t>(proxy->m_collisionFilterGroup),
+                                 static_cast<std::uint32_t>(proxy->m_collisionFilterMask)))
+            continue;
+        const double pad = s.settings.reach + (sample_speed + candidate.speed) * dt;
+        if (((to_eigen(candidate.lo) - x).array() > pad).any() || ((x - to_eigen(candidate.hi)).array() > pad).any())
+          continue;
+        double phi;
+        Vec3 normal;
+        if (signed_distance(object->getCollisionShape(), object->getWorldTransform(), x, pad, phi, normal) &&
+            phi < pad) {
+          close = true;
+          break;
+        }
+      }
+      if (close) s.last_near[k] = now;
+      if (close && d < 0) added.emplace_back(set, k);
+      if (!close && d >= 0 && now - s.last_near[k] > s.settings.linger) {
+        removed.push_back(d);
+        d = -1;
+      }
+    }
+  }
+  if (!removed.empty()) m_system.remove_particles(removed);
+  for (const auto& [set, k] : added) {
+    SprinkleSet& s = m_sprinkles[set];
+    s.particle[k] = add_sprinkled(s.samples[k]);
+  }
+}
+
 void Coupling::update_pinches() {
   if (!m_collisions || (!m_pinching && m_pinches.empty())) return;
   PinchScratch& w = m_pinch_scratch;
@@ -875,6 +1042,7 @@ StepStats Coupling::tick(double dt) {
   copy_state_in();
   follow_teleports();
   if (m_collisions) update_pinches();
+  update_sprinkles(dt);
   if (m_system.needs_set_up()) set_up();
   copy_joints_in(dt);
   if (m_system.asleep()) wake_on_approach(dt);

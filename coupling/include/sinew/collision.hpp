@@ -24,6 +24,9 @@
 
 namespace sinew {
 
+class HardBindings;
+struct SoftBindings;
+
 /// A velocity constraint from step 3 on a weighted stencil of up to four particles, enforced in the
 /// step-4 solve by projection: sum_i w_i n . v_i = normal_velocity. A node against a rigid surface is
 /// one particle of weight 1; a node against a triangle (1, -b0, -b1, -b2) with b the barycentric
@@ -88,10 +91,36 @@ class CollisionContext {
   /// which step 4 starts, gains r x j. Kinematic bodies (infinite mass) do not move.
   void apply_body_impulse(Index body, const Vec3& point, const Vec3& j);
 
+  // ---- synchronized soft particles (section 3.1), one contact at a time ---------------------------
+  /// Puts synchronized soft particle `particle` (and its target's row) on its target as the target's
+  /// parents are now, after the contacts resolved before it moved them; false (nothing done) for any
+  /// other particle. A source that resolves contacts one after the other calls it before testing the
+  /// particle and push_drift after changing it, as the paper's authors do: many collision particles
+  /// on the same parents (a sprinkled surface resting on the ground, a dozen samples a tet) then each
+  /// see the corrections made before them (Gauss-Seidel), where drifts summed at the end of step 3
+  /// would push the shared parents as many times too far.
+  bool synchronize(Index particle);
+  /// Pushes what the source did to synchronized particle `particle` since synchronize (dx, dv) to its
+  /// target's parents now (W^T with the effective mass, SoftBindings::push_drift), and puts it back on
+  /// its moved target.
+  void push_drift(Index particle);
+  /// For a synchronized particle whose target is a linear binding's point with at most four parents,
+  /// all dynamic: the target's stencil (parents and weights) in c, so that a contact on the particle
+  /// can hold the target in step 4. False otherwise.
+  bool target_stencil(Index particle, CollisionConstraint& c) const;
+
   // Set by the step.
   std::vector<CollisionConstraint>* m_constraints = nullptr;
   RigidBodyParticles* m_bodies = nullptr;
   Vectors3* m_body_L = nullptr;
+  Particles* m_particles = nullptr;  ///< the same as `particles`, for push_drift
+  HardBindings* m_hard = nullptr;
+  const SoftBindings* m_soft = nullptr;
+  const VectorXd* m_effective_mass = nullptr;
+
+ private:
+  Index target_of(Index particle) const;
+  mutable std::vector<Index> m_target;  // per particle: its synchronized target, -1 none (built on first use)
 };
 
 /// One collision source of step 3 (a rigid solver's shapes, a ground plane, self-contact, ...).

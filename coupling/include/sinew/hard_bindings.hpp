@@ -71,6 +71,13 @@ class HardBindings {
     return kind != nullptr && kind->on_rigid_frames();
   }
 
+  /// The linear binding holding `particle` (after flatten()): its index in linear(), or -1 when it has
+  /// none (free, or on a rigid frame).
+  Index linear_binding_of(Index particle) const {
+    const BindingKind* kind = kind_of(particle);
+    return kind == &m_linear ? m_index_in_kind[static_cast<std::size_t>(particle)] : -1;
+  }
+
   // ---- W, W^T over every binding -----------------------------------------------------------------
   /// Caches r = R(q) r0 for every rigid binding; call whenever orientations change.
   void update_rigid_offsets(const RigidBodyParticles& bodies);

@@ -49,6 +49,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <unordered_map>
 #include <vector>
 
@@ -106,6 +107,26 @@ struct CouplingSettings {
   /// acts in step 3 only): in the pinch scene the hold's velocity RMS is 0.005 m/s at 10 N/m, 0.09
   /// at 100 and 0.25 at 300, while the nodes move at under 1 mm/s in all three.
   double pinch_stiffness = 10.0;
+};
+
+/// Collision particles sprinkled on an embedded surface (Sifakis et al. 2007, section 2, figure 3): a
+/// coarse tet mesh collides only where its nodes are, and a small body passes between them; points of
+/// the embedded surface, denser than the tets, collide instead. Each sample is a hard-bound point (the
+/// surface of add_embedded_volume, a point from System::add_embedded_point); its collision particle is
+/// a synchronized soft particle on it (section 3.1: it starts every step on the sample, and whatever a
+/// contact does to it goes to the sample's parents through W^T, so it adds no mass, momentum or
+/// unknown).
+struct SprinkleSettings {
+  /// false: every sample gets its collision particle at once and keeps it (static sprinkling). true: a
+  /// sample gets one while a Bullet object's surface is within `reach` of it (plus how far both can
+  /// move in the tick), and loses it once none has been for `linger` seconds.
+  bool adaptive = true;
+  double reach = 0.05;   ///< [m] finite, >= 0
+  double linger = 0.25;  ///< [s] finite, >= 0
+  /// false: the samples' parents (the tets' nodes, which for a lattice around the surface lie outside
+  /// it) stop meeting Bullet's objects (their collision mask is cleared), so the body meets them with
+  /// its surface alone; true: they keep colliding as before.
+  bool hosts_collide = false;
 };
 
 class BulletCollisions;
@@ -174,6 +195,14 @@ class Coupling {
   };
   /// The pinches of the last tick, in node order.
   const std::vector<Pinch>& pinches() const { return m_pinches; }
+  /// Sprinkles collision particles on hard-bound points `samples` (SprinkleSettings); returns the set's
+  /// index. Throws naming the sample that does not exist or is not hard-bound to a deformable, or the
+  /// bad setting; with collisions off there is nothing to sprinkle for, which is an error too.
+  Index sprinkle(std::span<const Index> samples, const SprinkleSettings& settings = {});
+  /// The collision particles sprinkle set `set` holds now (per sample, -1 where it has none).
+  std::span<const Index> sprinkled(Index set) const;
+  /// How many collision particles sprinkle set `set` holds now.
+  Index sprinkled_count(Index set) const;
 
  private:
   static void pre_tick(btDynamicsWorld* world, btScalar dt);
@@ -310,6 +339,18 @@ class Coupling {
   bool m_pinching = false;
   double m_pinch_stiffness = 10.0;
   std::vector<Pinch> m_pinches;
+  struct SprinkleSet {
+    std::vector<Index> samples;
+    std::vector<Index> particle;    // per sample: its collision particle, -1 none
+    std::vector<double> last_near;  // per sample: the last time a Bullet object was within reach
+    SprinkleSettings settings;
+  };
+  std::vector<SprinkleSet> m_sprinkles;
+  /// At the start of a tick: adaptive sprinkle sets gain collision particles on samples near Bullet's
+  /// objects and lose those that have been far for longer than `linger`.
+  void update_sprinkles(double dt);
+  /// A sprinkled collision particle on `sample` (a synchronized soft particle with its filter).
+  Index add_sprinkled(Index sample);
   // update_pinches' scratch (kept: no allocation per tick once sized): the objects near the free
   // nodes with their grown boxes, the world's objects sorted by address, each particle's soft-binding
   // target, the pinches kept and added, the duplicates released, and the filters handed to the
