@@ -84,4 +84,30 @@ ClosedSurface sphere_surface(int levels, double radius, const Vec3& centre) {
   return s;
 }
 
+RefinedTriangles refined_strip(int nx, int ny, double width, double height, const Vec3& origin) {
+  Vectors3 v(3, nx * ny);
+  for (int j = 0; j < ny; ++j)
+    for (int i = 0; i < nx; ++i) v.col(j * nx + i) = origin + Vec3(width * i / (nx - 1), height * j / (ny - 1), 0);
+  std::vector<std::array<Index, 3>> triangles;
+  for (int j = 0; j + 1 < ny; ++j)
+    for (int i = 0; i + 1 < nx; ++i) {
+      const Index a = j * nx + i, b = a + 1, c = a + nx + 1, d = a + nx;
+      triangles.push_back({a, b, c});
+      triangles.push_back({a, c, d});
+    }
+  RefinedTriangles mesh = unrefined(v, triangles);
+  const double middle = origin.x() + 0.5 * width;
+  for (int level = 0; level < 2; ++level) {
+    const double reach = (level == 0 ? 0.3 : 0.15) * width;
+    std::vector<Index> chosen;
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+      const auto& tri = mesh.triangles[t];
+      const double x = (mesh.vertices(0, tri[0]) + mesh.vertices(0, tri[1]) + mesh.vertices(0, tri[2])) / 3.0;
+      if (std::abs(x - middle) < reach && mesh.level[t] == level) chosen.push_back(static_cast<Index>(t));
+    }
+    mesh = red_refine(mesh, chosen);
+  }
+  return mesh;
+}
+
 }  // namespace sinew::scenes

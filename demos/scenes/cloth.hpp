@@ -2,6 +2,7 @@
 #pragma once
 
 #include "sinew/builders.hpp"
+#include "sinew/refinement.hpp"
 
 #include <array>
 #include <vector>
@@ -46,5 +47,10 @@ struct ClosedSurface {
 /// A sphere of `radius` [m] about `centre`: an icosahedron whose faces are split in four `levels`
 /// times, the new vertices pushed onto the sphere (20 * 4^levels triangles).
 ClosedSurface sphere_surface(int levels, double radius, const Vec3& centre = Vec3::Zero());
+
+/// Figure 5's sheet: a strip of `width` x `height` in the x-y plane from `origin` (its lower left
+/// corner), nx x ny nodes, two triangles a cell, red-refined once where a triangle's centre is within
+/// 0.3 width of the middle and twice within 0.15: T-junctions along both borders of each level.
+RefinedTriangles refined_strip(int nx, int ny, double width, double height, const Vec3& origin = Vec3::Zero());
 
 }  // namespace sinew::scenes
