@@ -611,3 +611,35 @@ TEST(TJunctionDemo, BoundTJunctionsKeepTheSheetClosedAndFreeOnesOpenGaps) {
 
 }  // namespace
 }  // namespace sinew
+
+namespace sinew {
+namespace {
+
+// Figure 8: blocks stitched by binding springs between embedded points. At rest each lower block
+// hangs by its stitches, whose mean stretch is then m g / (n k) whatever the blocks' elasticity:
+// centimetres for the soft stitches, coincident to the solver's tolerance for the stiff ones, at the
+// step the other demos use. The passive scene never gains energy on the way.
+TEST(StitchDemo, StitchesStretchByTheLowerBlocksWeightOverTheirStiffness) {
+  auto scene = make_bullet_scene("stitch");
+  const double energy_0 = scene->total_energy();
+  double gain = -kInfinity;
+  for (int f = 1; f <= 90; ++f) {
+    scene->advance(1.0 / 60, scene->default_substeps());
+    gain = std::max(gain, scene->total_energy() - energy_0);
+  }
+  const std::string fields = scene->json_fields();
+  EXPECT_LT(gain, 1e-9 * std::abs(energy_0));
+  for (const char* name : {"soft", "medium"}) {
+    SCOPED_TRACE(name);
+    const double predicted = json_field(fields, std::string("gap_") + name + "_predicted");
+    EXPECT_NEAR(json_field(fields, std::string("gap_") + name), predicted, 0.02 * predicted);
+  }
+  EXPECT_GT(json_field(fields, "gap_soft"), 0.01);
+  EXPECT_LT(json_field(fields, "gap_stiff_largest"), 1e-6);
+  EXPECT_NEAR(json_field(fields, "gap_stiff"), json_field(fields, "gap_stiff_predicted"),
+              0.05 * json_field(fields, "gap_stiff_predicted"));
+  EXPECT_TRUE(scene->system().particles().x.allFinite());
+}
+
+}  // namespace
+}  // namespace sinew

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
 
 namespace sinew::scenes {
 
@@ -82,6 +83,46 @@ ClosedSurface sphere_surface(int levels, double radius, const Vec3& centre) {
   for (std::size_t i = 0; i < v.size(); ++i) s.vertices.col(static_cast<Index>(i)) = centre + radius * v[i];
   s.triangles = std::move(f);
   return s;
+}
+
+ClosedSurface box_surface(const Vec3& lo, const Vec3& hi, int n) {
+  ClosedSurface box;
+  std::map<std::array<int, 3>, Index> index;  // grid point (i, j, k) on the surface -> vertex
+  std::vector<Vec3> points;
+  const auto vertex = [&](std::array<int, 3> g) {
+    const auto [found, added] = index.emplace(g, static_cast<Index>(points.size()));
+    if (added) {
+      Vec3 p;
+      for (int a = 0; a < 3; ++a) p[a] = lo[a] + (hi[a] - lo[a]) * g[static_cast<std::size_t>(a)] / n;
+      points.push_back(p);
+    }
+    return found->second;
+  };
+  for (int a = 0; a < 3; ++a) {
+    const int u = (a + 1) % 3, v = (a + 2) % 3;  // e_u x e_v = e_a
+    for (const int side : {0, n})
+      for (int i = 0; i < n; ++i)
+        for (int j = 0; j < n; ++j) {
+          const auto at = [&](int di, int dj) {
+            std::array<int, 3> g{};
+            g[static_cast<std::size_t>(a)] = side;
+            g[static_cast<std::size_t>(u)] = i + di;
+            g[static_cast<std::size_t>(v)] = j + dj;
+            return vertex(g);
+          };
+          const Index p00 = at(0, 0), p10 = at(1, 0), p11 = at(1, 1), p01 = at(0, 1);
+          if (side == n) {
+            box.triangles.push_back({p00, p10, p11});
+            box.triangles.push_back({p00, p11, p01});
+          } else {
+            box.triangles.push_back({p00, p11, p10});
+            box.triangles.push_back({p00, p01, p11});
+          }
+        }
+  }
+  box.vertices.resize(3, static_cast<Index>(points.size()));
+  for (std::size_t k = 0; k < points.size(); ++k) box.vertices.col(static_cast<Index>(k)) = points[k];
+  return box;
 }
 
 RefinedTriangles refined_strip(int nx, int ny, double width, double height, const Vec3& origin) {

@@ -48,6 +48,10 @@ struct ClosedSurface {
 /// times, the new vertices pushed onto the sphere (20 * 4^levels triangles).
 ClosedSurface sphere_surface(int levels, double radius, const Vec3& centre = Vec3::Zero());
 
+/// The surface of the box [lo, hi], each face an n x n grid of squares split in two, outward-facing;
+/// vertices shared along the edges (a closed surface).
+ClosedSurface box_surface(const Vec3& lo, const Vec3& hi, int n);
+
 /// Figure 5's sheet: a strip of `width` x `height` in the x-y plane from `origin` (its lower left
 /// corner), nx x ny nodes, two triangles a cell, red-refined once where a triangle's centre is within
 /// 0.3 width of the middle and twice within 0.15: T-junctions along both borders of each level.
