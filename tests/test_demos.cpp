@@ -643,3 +643,48 @@ TEST(StitchDemo, StitchesStretchByTheLowerBlocksWeightOverTheirStiffness) {
 
 }  // namespace
 }  // namespace sinew
+
+namespace sinew {
+namespace {
+
+// Flesh on bones: a soft arm embedded around two Bullet bones, hanging from a hinge at the shoulder,
+// then bent at the elbow by Bullet's motor. Passive, the scene never gains energy and comes to rest
+// with Bullet's bones carrying their own mass and the bound flesh's, the free flesh hanging from them
+// (no mass dropped: the two add up to the bones' and the whole flesh's); the bound flesh stays on its
+// bones to round-off and the elbow's hinge holds while the motor bends it.
+TEST(LimbDemo, TheBonesCarryTheFleshAndTheElbowBendsIt) {
+  auto scene = make_bullet_scene("limb");
+  scene->advance(1.0 / 60, scene->default_substeps());  // the set-up hands the bound flesh to the bones
+  const double energy_0 = scene->total_energy();
+  double gain = -kInfinity, drift = 0.0;
+  for (int f = 2; f <= 90; ++f) {
+    scene->advance(1.0 / 60, scene->default_substeps());
+    gain = std::max(gain, scene->total_energy() - energy_0);
+    drift = std::max(drift, scene->measure().hard_binding_drift);
+  }
+  std::string fields = scene->json_fields();
+  const double flesh = json_field(fields, "flesh_mass"), free = json_field(fields, "free_flesh_mass");
+  EXPECT_LT(gain, 1e-6 * energy_0);
+  EXPECT_NEAR(json_field(fields, "bullet_mass") + free, 1.6 + flesh, 1e-9 * flesh);
+  EXPECT_GT(json_field(fields, "bullet_mass") - 1.6, 0.1 * flesh) << "the bones carry a fair share of the flesh";
+  EXPECT_GT(free, 0.5 * flesh) << "most of the flesh hangs free";
+  EXPECT_LT(scene->measure().velocity_rms, 1e-3) << "at rest";
+  double elbow_gap = 0.0;
+  for (int f = 91; f <= 180; ++f) {
+    scene->advance(1.0 / 60, scene->default_substeps());
+    drift = std::max(drift, scene->measure().hard_binding_drift);
+    const auto& bodies = scene->bullet().bodies();
+    const btVector3 upper = bodies[0]->getCenterOfMassTransform() * btVector3(0, -0.15f, 0);
+    const btVector3 fore = bodies[1]->getCenterOfMassTransform() * btVector3(0, 0.13f, 0);
+    elbow_gap = std::max(elbow_gap, static_cast<double>((upper - fore).length()));
+  }
+  fields = scene->json_fields();
+  EXPECT_NEAR(json_field(fields, "elbow_angle"), 1.2, 0.05) << "the motor bent the elbow";
+  EXPECT_LT(elbow_gap, 1e-3) << "the elbow holds to a millimetre while the motor bends the flesh";
+  EXPECT_LT(drift, 1e-12);
+  EXPECT_GT(json_field(fields, "tets"), 5000);
+  EXPECT_TRUE(scene->system().particles().x.allFinite());
+}
+
+}  // namespace
+}  // namespace sinew

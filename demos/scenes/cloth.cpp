@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <numbers>
 
 namespace sinew::scenes {
 
@@ -123,6 +124,49 @@ ClosedSurface box_surface(const Vec3& lo, const Vec3& hi, int n) {
   box.vertices.resize(3, static_cast<Index>(points.size()));
   for (std::size_t k = 0; k < points.size(); ++k) box.vertices.col(static_cast<Index>(k)) = points[k];
   return box;
+}
+
+ClosedSurface capsule_surface(const Vec3& a, const Vec3& b, double radius, int around, int along, int cap) {
+  const Vec3 axis = (b - a).normalized();
+  const double half = 0.5 * (b - a).norm();
+  const Vec3 centre = 0.5 * (a + b);
+  // e1, e2, axis right-handed: the rings run counter-clockwise seen from b.
+  const Vec3 e1 = (std::abs(axis.x()) < 0.9 ? Vec3::UnitX() : Vec3::UnitY()).cross(axis).normalized();
+  const Vec3 e2 = axis.cross(e1);
+  // The rings from a's pole to b's, as (position along the axis, radius).
+  std::vector<std::pair<double, double>> rings;
+  for (int k = 1; k <= cap; ++k) {
+    const double phi = -0.5 * std::numbers::pi + 0.5 * std::numbers::pi * k / cap;
+    rings.emplace_back(-half + radius * std::sin(phi), radius * std::cos(phi));
+  }
+  for (int j = 1; j <= along; ++j) rings.emplace_back(-half + 2.0 * half * j / along, radius);
+  for (int k = 1; k < cap; ++k) {
+    const double phi = 0.5 * std::numbers::pi * k / cap;
+    rings.emplace_back(half + radius * std::sin(phi), radius * std::cos(phi));
+  }
+  const Index n_rings = static_cast<Index>(rings.size());
+  ClosedSurface capsule;
+  capsule.vertices.resize(3, 2 + n_rings * around);
+  capsule.vertices.col(0) = centre - (half + radius) * axis;
+  for (Index r = 0; r < n_rings; ++r)
+    for (int i = 0; i < around; ++i) {
+      const double theta = 2.0 * std::numbers::pi * i / around;
+      const auto [t, rho] = rings[static_cast<std::size_t>(r)];
+      capsule.vertices.col(1 + r * around + i) =
+          centre + t * axis + rho * (std::cos(theta) * e1 + std::sin(theta) * e2);
+    }
+  const Index top = 1 + n_rings * around;
+  capsule.vertices.col(top) = centre + (half + radius) * axis;
+  const auto ring = [&](Index r, int i) { return 1 + r * around + (i % around); };
+  for (int i = 0; i < around; ++i) {
+    capsule.triangles.push_back({0, ring(0, i + 1), ring(0, i)});
+    for (Index r = 0; r + 1 < n_rings; ++r) {
+      capsule.triangles.push_back({ring(r, i), ring(r, i + 1), ring(r + 1, i + 1)});
+      capsule.triangles.push_back({ring(r, i), ring(r + 1, i + 1), ring(r + 1, i)});
+    }
+    capsule.triangles.push_back({ring(n_rings - 1, i), ring(n_rings - 1, i + 1), top});
+  }
+  return capsule;
 }
 
 RefinedTriangles refined_strip(int nx, int ny, double width, double height, const Vec3& origin) {

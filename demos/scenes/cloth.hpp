@@ -52,6 +52,11 @@ ClosedSurface sphere_surface(int levels, double radius, const Vec3& centre = Vec
 /// vertices shared along the edges (a closed surface).
 ClosedSurface box_surface(const Vec3& lo, const Vec3& hi, int n);
 
+/// A capsule's surface: the cylinder of `radius` around the segment [a, b] closed by hemispheres,
+/// `around` vertices on each ring, `along` bands on the cylinder and `cap` bands on each hemisphere
+/// (its pole one vertex); outward-facing, vertices shared (a closed surface).
+ClosedSurface capsule_surface(const Vec3& a, const Vec3& b, double radius, int around, int along, int cap);
+
 /// Figure 5's sheet: a strip of `width` x `height` in the x-y plane from `origin` (its lower left
 /// corner), nx x ny nodes, two triangles a cell, red-refined once where a triangle's centre is within
 /// 0.3 width of the middle and twice within 0.15: T-junctions along both borders of each level.
