@@ -1,0 +1,256 @@
+#include "bullet_scenes.hpp"
+
+#include "sinew/ccd.hpp"
+#include "sinew/forces/triangle_membrane.hpp"
+#include "sinew/lattice.hpp"
+#include "sinew/refinement.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+namespace sinew::scenes {
+namespace {
+
+// Figure 7: sub-element elasticity through soft bindings. Two coarse balls (a sphere surface of 320
+// triangles, vertices about 4 cm apart, embedded in a BCC lattice of 10 cm cells) rest on the ground,
+// tied down by their lowest nodes; a kinematic Bullet sphere of 2.5 cm radius comes down on each top
+// after kWait, presses until its centre is kPress below the settled top, holds, and goes back up.
+//   left   the lattice's nodes collide with it, nothing else: it goes in between them;
+//   right  the surface is red-refined twice where the probe comes (figure 4: triangles within kFine
+//          of its path, then within kFiner), every refined vertex is a hard-bound target on the coarse
+//          surface (the original vertices embedded in the tets, the midpoints bound to the ends of
+//          the edges they halve), and each target has a soft-bound particle tied to it by a binding
+//          spring (section 3.2) that inherits the tets' elastic accelerations (f_s = m_s a_target).
+//          The soft particles, not the nodes, meet the probe: they drift from their targets by the
+//          dent, far finer than a tet, and the springs pull the tets along; once the probe leaves,
+//          the springs bring them back.
+// Refined statically around the probe's known path (the scene models only what it needs); the paper
+// refines as bodies come near.
+class SubElement final : public BulletScene {
+ public:
+  SubElement() : BulletScene(btVector3(0, -9.81, 0)) {
+    btCollisionShape* ground = m_world.keep(std::make_unique<btStaticPlaneShape>(btVector3(0, 1, 0), 0));
+    m_world.add_body(ground, 0.0, btTransform::getIdentity())->setFriction(0.8);
+    btCollisionShape* pin = m_world.keep(std::make_unique<btSphereShape>(btScalar(0.01)));
+    btRigidBody* anchor = m_world.add_body(pin, 0.0, at(btVector3(0, -1, 0)));
+    anchor->setCollisionFlags(anchor->getCollisionFlags() | btCollisionObject::CF_NO_CONTACT_RESPONSE);
+    btCollisionShape* probe = m_world.keep(std::make_unique<btSphereShape>(btScalar(kProbeRadius)));
+    VolumeMaterial material;
+    material.density = 200.0;
+    material.young_modulus = 3e4;
+    material.poisson_ratio = 0.3;
+    material.damping = 0.02;
+    for (int b = 0; b < 2; ++b) {
+      Ball& ball = m_balls[static_cast<std::size_t>(b)];
+      ball.x = (b == 0 ? -1.0 : 1.0) * 0.25;
+      ball.surface = sphere_surface(2, kRadius, Vec3(ball.x, kRadius, 0));
+      ball.volume = add_embedded_volume(system(), ball.surface.vertices, ball.surface.triangles, kSpacing, material);
+      // Held up by the nodes below the surface, up to a cell below it: put it there from the start.
+      double lowest = kInfinity;
+      for (const Index i : ball.volume.lattice) lowest = std::min(lowest, system().particles().x(1, i));
+      for (const Index i : ball.volume.lattice) system().particles().x(1, i) -= lowest - 0.011;
+      for (const Index i : ball.volume.surface) system().particles().x(1, i) -= lowest - 0.011;
+      for (Index v = 0; v < ball.surface.vertices.cols(); ++v) ball.surface.vertices(1, v) -= lowest - 0.011;
+      double lowest_node = kInfinity;
+      for (const Index i : ball.volume.lattice) lowest_node = std::min(lowest_node, system().particles().x(1, i));
+      for (const Index i : ball.volume.lattice)
+        if (system().particles().x(1, i) < lowest_node + 0.25 * kSpacing)
+          coupling().attach(i, anchor, system().particles().x.col(i) - Vec3(0, -1, 0), kTie);
+      ball.top = -kInfinity;
+      for (Index v = 0; v < ball.surface.vertices.cols(); ++v)
+        ball.top = std::max(ball.top, ball.surface.vertices(1, v));
+      if (b == 1) add_soft_surface(ball);
+      if (ball.soft.empty()) {
+        for (const auto& t : ball.surface.triangles)
+          ball.skin.push_back({ball.volume.surface[static_cast<std::size_t>(t[0])],
+                               ball.volume.surface[static_cast<std::size_t>(t[1])],
+                               ball.volume.surface[static_cast<std::size_t>(t[2])]});
+      }
+      add_surface(b == 0 ? "nodes only" : "soft-bound refined surface", ball.skin);
+      ball.probe = m_world.add_body(probe, 0.0, probe_pose(ball, 0.0), btVector3(0, 0, 0), kProbeGroup,
+                                    btBroadphaseProxy::AllFilter);
+      ball.probe->setCollisionFlags(ball.probe->getCollisionFlags() | btCollisionObject::CF_KINEMATIC_OBJECT);
+      ball.probe->setActivationState(DISABLE_DEACTIVATION);
+    }
+  }
+
+  void before_frame(double t) override {
+    if (t >= kWait && !m_settled) {
+      m_settled = true;
+      for (Ball& ball : m_balls) {
+        ball.top = -kInfinity;
+        for (const Index i : ball.volume.surface) ball.top = std::max(ball.top, system().particles().x(1, i));
+      }
+    }
+    for (const Ball& ball : m_balls) ball.probe->getMotionState()->setWorldTransform(probe_pose(ball, t));
+  }
+
+  void advance(double frame_dt, int substeps) override {
+    BulletScene::advance(frame_dt, substeps);
+    for (Ball& ball : m_balls) {
+      ball.deepest = std::max(ball.deepest, depth(ball));
+      ball.most_drift = std::max(ball.most_drift, drift(ball));
+    }
+  }
+
+  std::string json_fields() override {
+    const Ball& nodes = m_balls[0];
+    const Ball& soft = m_balls[1];
+    char text[512];
+    std::snprintf(text, sizeof text,
+                  "\"lattice_nodes\": %zu, \"tets\": %zu, \"coarse_triangles\": %zu, \"refined_triangles\": %zu, "
+                  "\"soft_particles\": %zu, \"deepest_nodes_only\": %.4f, \"deepest_soft\": %.4f, "
+                  "\"soft_drift_max\": %.4f, \"soft_drift_now\": %.3g, ",
+                  nodes.volume.lattice.size(), nodes.volume.embedding.tets.size(), nodes.surface.triangles.size(),
+                  soft.skin.size(), soft.soft.size(), nodes.deepest, soft.deepest, soft.most_drift, drift(soft));
+    return text;
+  }
+
+  static constexpr double kRadius = 0.15, kSpacing = 0.1, kProbeRadius = 0.025, kSpeed = 0.25, kPress = 0.03,
+                          kStartAbove = 0.03, kWait = 0.5, kHold = 1.0, kTie = 2e3, kFine = 0.09, kFiner = 0.05,
+                          kSoftStiffness = 20.0, kOff = 0.025, kSkinMu = 50.0;
+  static constexpr int kProbeGroup = btBroadphaseProxy::CharacterFilter;
+
+ private:
+  struct Ball {
+    double x = 0.0, top = 0.0;
+    ClosedSurface surface;
+    EmbeddedVolume volume;
+    std::vector<Index> target;             // per refined vertex (right ball): its target
+    std::vector<Index> soft, soft_target;  // the soft particles and their targets
+    std::vector<std::array<Index, 3>> skin;
+    btRigidBody* probe = nullptr;
+    double deepest = -kInfinity, most_drift = 0.0;
+  };
+
+  const System& system_const() const { return m_coupling->system(); }
+
+  // The right ball's collision surface: refined around the probe's path, a target per vertex, a soft
+  // particle tied to each. The lattice's nodes stop meeting the probe (its collision group is out of
+  // their mask); they still rest on the ground.
+  void add_soft_surface(Ball& ball) {
+    RefinedTriangles mesh = unrefined(ball.surface.vertices, ball.surface.triangles);
+    for (const double reach : {kFine, kFiner}) {
+      std::vector<Index> chosen;
+      for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+        Vec3 c = Vec3::Zero();
+        for (const Index v : mesh.triangles[t]) c += mesh.vertices.col(v) / 3.0;
+        if (c.y() > ball.top - kRadius && std::hypot(c.x() - (ball.x + kOff), c.z() - kOff) < reach)
+          chosen.push_back(static_cast<Index>(t));
+      }
+      mesh = red_refine(mesh, chosen);
+    }
+    const Index coarse = ball.surface.vertices.cols();
+    ball.target.assign(static_cast<std::size_t>(mesh.vertices.cols()), -1);
+    for (Index v = 0; v < coarse; ++v)
+      ball.target[static_cast<std::size_t>(v)] = ball.volume.surface[static_cast<std::size_t>(v)];
+    for (Index v = coarse; v < mesh.vertices.cols(); ++v)
+      ball.target[static_cast<std::size_t>(v)] = system().add_particle(mesh.vertices.col(v), Vec3::Zero(), 0.0);
+    // Each midpoint on the edge it halves (chains flattened at set-up): on the coarse surface.
+    for (const auto& [edge, middle] : mesh.midpoint) {
+      const Index parents[2] = {ball.target[static_cast<std::size_t>(edge.first)],
+                                ball.target[static_cast<std::size_t>(edge.second)]};
+      const double weights[2] = {0.5, 0.5};
+      system().bind_linear(ball.target[static_cast<std::size_t>(middle)], parents, weights);
+    }
+    const std::uint32_t probe = static_cast<std::uint32_t>(kProbeGroup);
+    for (const Index i : ball.volume.lattice)
+      system().set_collision_filter(i, kDefaultCollisionGroup, kAllCollisionGroups & ~probe);
+    // Soft particles where the surface was refined (the vertices of its split triangles): they meet
+    // the probe alone; elsewhere the surface is drawn from its targets.
+    std::vector<char> refined(static_cast<std::size_t>(mesh.vertices.cols()), 0);
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
+      if (mesh.level[t] > 0)
+        for (const Index v : mesh.triangles[t]) refined[static_cast<std::size_t>(v)] = 1;
+    std::vector<Index> drawn(ball.target);
+    for (Index v = 0; v < mesh.vertices.cols(); ++v) {
+      if (!refined[static_cast<std::size_t>(v)]) continue;
+      const Index s = system().add_particle(mesh.vertices.col(v), Vec3::Zero(), 0.0);
+      SoftBindingSettings binding;
+      binding.particle = s;
+      binding.target = ball.target[static_cast<std::size_t>(v)];
+      binding.coupling = SoftCoupling::spring;
+      binding.stiffness = kSoftStiffness;
+      system().add_soft_binding(binding);
+      system().set_collision_filter(s, kDefaultCollisionGroup, probe);
+      ball.soft.push_back(s);
+      ball.soft_target.push_back(binding.target);
+      drawn[static_cast<std::size_t>(v)] = s;
+    }
+    std::vector<std::array<Index, 3>> skin_of_soft;
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+      const auto& tri = mesh.triangles[t];
+      const std::array<Index, 3> drawn_tri{drawn[static_cast<std::size_t>(tri[0])],
+                                           drawn[static_cast<std::size_t>(tri[1])],
+                                           drawn[static_cast<std::size_t>(tri[2])]};
+      ball.skin.push_back(drawn_tri);
+      if (refined[static_cast<std::size_t>(tri[0])] && refined[static_cast<std::size_t>(tri[1])] &&
+          refined[static_cast<std::size_t>(tri[2])])
+        skin_of_soft.push_back(drawn_tri);
+    }
+    // The soft copy of the surface holds together as a membrane (section 3.1: soft-bound particles may
+    // carry forces of their own), so the probe dents it instead of parting its particles.
+    TriangleMembraneSettings membrane;
+    membrane.mu = kSkinMu;
+    membrane.lambda = kSkinMu;
+    system().add_force(std::make_unique<TriangleMembrane>(skin_of_soft, system().particles().x, membrane));
+  }
+
+  // Largest distance of a soft particle from its target now [m] (0 for the left ball).
+  double drift(const Ball& ball) const {
+    const Vectors3& x = system_const().particles().x;
+    double most = 0.0;
+    for (std::size_t k = 0; k < ball.soft.size(); ++k)
+      most = std::max(most, (x.col(ball.soft[k]) - x.col(ball.soft_target[k])).norm());
+    return most;
+  }
+
+  // How deep the probe is in the ball's drawn surface [m]: its radius less the distance from its
+  // centre to the nearest triangle, signed by that triangle's outward side; negative while outside.
+  double depth(const Ball& ball) const {
+    const Vectors3& x = system_const().particles().x;
+    const Vec3 c = to_eigen(ball.probe->getWorldTransform().getOrigin());
+    double nearest = kInfinity, side = 1.0;
+    for (const auto& t : ball.skin) {
+      const Vec3 a = x.col(t[0]), b = x.col(t[1]), d = x.col(t[2]);
+      const Vec3 p = closest_on_triangle(c, a, b, d);
+      const double distance = (c - p).norm();
+      if (distance < nearest) {
+        nearest = distance;
+        side = (c - p).dot((b - a).cross(d - a)) < 0.0 ? -1.0 : 1.0;
+      }
+    }
+    return kProbeRadius - side * nearest;
+  }
+
+  // The probe over `ball` at time t: kStartAbove over the top at first, coming down at kSpeed after
+  // kWait until its centre is kPress below the top, held for kHold, then going back up at kSpeed.
+  // Its path is off the ball's axis by (2.5 cm, 2.5 cm): between the lattice's node columns.
+  static btTransform probe_pose(const Ball& ball, double t) {
+    const double start = ball.top + kStartAbove + kProbeRadius, bottom = ball.top - kPress;
+    const double down = (start - bottom) / kSpeed, up_at = kWait + down + kHold;
+    double y = std::max(bottom, start - kSpeed * std::max(0.0, t - kWait));
+    if (t > up_at) y = std::min(start, bottom + kSpeed * (t - up_at));
+    return at(btVector3(btScalar(ball.x + kOff), btScalar(y), btScalar(kOff)));
+  }
+
+  // Closest point on triangle (a, b, c) to p.
+  static Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
+    const std::array<double, 3> w = ccd::closest_on_triangle(p, a, b, c);
+    return w[0] * a + w[1] * b + w[2] * c;
+  }
+
+  std::array<Ball, 2> m_balls;
+  bool m_settled = false;
+};
+
+SINEW_REGISTER_SCENE({.name = "subelement",
+                      .description = "figure 7: a small Bullet sphere pressed into two coarse balls: lattice nodes "
+                                     "only, and a refined surface of soft-bound particles on binding springs",
+                      .kind = SceneKind::bullet,
+                      .make = [](const SceneParams&) { return std::make_unique<SubElement>(); },
+                      .gallery_frame = 75});
+
+}  // namespace
+}  // namespace sinew::scenes
