@@ -126,6 +126,16 @@ ClosedSurface box_surface(const Vec3& lo, const Vec3& hi, int n) {
   return box;
 }
 
+std::vector<std::array<Index, 3>> embedded_skin(const EmbeddedVolume& volume,
+                                                const std::vector<std::array<Index, 3>>& triangles) {
+  std::vector<std::array<Index, 3>> skin;
+  skin.reserve(triangles.size());
+  for (const auto& t : triangles)
+    skin.push_back({volume.surface[static_cast<std::size_t>(t[0])], volume.surface[static_cast<std::size_t>(t[1])],
+                    volume.surface[static_cast<std::size_t>(t[2])]});
+  return skin;
+}
+
 ClosedSurface capsule_surface(const Vec3& a, const Vec3& b, double radius, int around, int along, int cap) {
   const Vec3 axis = (b - a).normalized();
   const double half = 0.5 * (b - a).norm();

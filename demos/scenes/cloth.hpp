@@ -52,6 +52,11 @@ ClosedSurface sphere_surface(int levels, double radius, const Vec3& centre = Vec
 /// vertices shared along the edges (a closed surface).
 ClosedSurface box_surface(const Vec3& lo, const Vec3& hi, int n);
 
+/// The triangles of a surface given to add_embedded_volume, indexing the particles of its embedded
+/// vertices (what a scene draws).
+std::vector<std::array<Index, 3>> embedded_skin(const EmbeddedVolume& volume,
+                                                const std::vector<std::array<Index, 3>>& triangles);
+
 /// A capsule's surface: the cylinder of `radius` around the segment [a, b] closed by hemispheres,
 /// `around` vertices on each ring, `along` bands on the cylinder and `cap` bands on each hemisphere
 /// (its pole one vertex); outward-facing, vertices shared (a closed surface).

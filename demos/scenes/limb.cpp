@@ -74,11 +74,7 @@ class Limb final : public BulletScene {
         ++m_bound[1];
       }
     }
-    std::vector<std::array<Index, 3>> skin;
-    for (const auto& t : arm.triangles)
-      skin.push_back({m_flesh.surface[static_cast<std::size_t>(t[0])], m_flesh.surface[static_cast<std::size_t>(t[1])],
-                      m_flesh.surface[static_cast<std::size_t>(t[2])]});
-    add_surface("flesh", std::move(skin));
+    add_surface("flesh", embedded_skin(m_flesh, arm.triangles));
   }
 
   int default_substeps() const override { return 1; }

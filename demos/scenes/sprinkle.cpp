@@ -70,13 +70,8 @@ class Sprinkle final : public BulletScene {
       }
       if (b == 0) ball.aim = between_nodes(ball);
       else ball.aim = m_balls[0].aim - Vec3(m_balls[0].x, 0, 0) + Vec3(ball.x, 0, 0);
-      std::vector<std::array<Index, 3>> skin;
-      for (const auto& t : ball.surface.triangles)
-        skin.push_back({ball.volume.surface[static_cast<std::size_t>(t[0])],
-                        ball.volume.surface[static_cast<std::size_t>(t[1])],
-                        ball.volume.surface[static_cast<std::size_t>(t[2])]});
-      ball.skin = skin;
-      add_surface(kNames[b], std::move(skin));
+      ball.skin = embedded_skin(ball.volume, ball.surface.triangles);
+      add_surface(kNames[b], ball.skin);
       ball.probe = m_world.add_body(probe, 0.0, probe_pose(ball, 0.0));
       ball.probe->setCollisionFlags(ball.probe->getCollisionFlags() | btCollisionObject::CF_KINEMATIC_OBJECT);
       ball.probe->setActivationState(DISABLE_DEACTIVATION);

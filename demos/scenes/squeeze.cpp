@@ -34,11 +34,7 @@ class Squeeze final : public BulletScene {
     material.poisson_ratio = 0.3;
     material.damping = 0.02;
     m_ball = add_embedded_volume(system(), ball.vertices, ball.triangles, kSpacing, material);
-    std::vector<std::array<Index, 3>> skin;
-    for (const auto& t : ball.triangles)
-      skin.push_back({m_ball.surface[static_cast<std::size_t>(t[0])], m_ball.surface[static_cast<std::size_t>(t[1])],
-                      m_ball.surface[static_cast<std::size_t>(t[2])]});
-    add_surface("ball", std::move(skin));
+    add_surface("ball", embedded_skin(m_ball, ball.triangles));
   }
   void before_frame(double) override {
     for (int side = 0; side < 2; ++side)

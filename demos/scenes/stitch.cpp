@@ -7,7 +7,7 @@ namespace sinew::scenes {
 namespace {
 
 // Figure 8: deformable bodies stitched together by binding springs between embedded points. Three
-// pairs of soft blocks (each 0.2 x 0.1 x 0.2 m, a box surface embedded in a BCC lattice of 5 cm cells):
+// pairs of soft blocks (each 0.2 x 0.1 x 0.2 m, a box surface embedded in a BCC lattice of 4.5 cm cells):
 // the upper block of each hangs from a static Bullet bar by its top face (Coupling::attach), the lower
 // one hangs from the upper by 25 binding springs (eq. 5, zero rest length, implicit in the step)
 // between the vertices of the two faces that meet, points embedded in each block's lattice. The
@@ -56,15 +56,8 @@ class Stitch final : public BulletScene {
           }
       }
       for (const Index i : down.lattice) pair.lower_mass += system().particles().mass[i];
-      for (const auto& [surface, volume, name] :
-           {std::tuple{&upper, &up, "upper"}, std::tuple{&lower, &down, "lower"}}) {
-        std::vector<std::array<Index, 3>> skin;
-        for (const auto& t : surface->triangles)
-          skin.push_back({volume->surface[static_cast<std::size_t>(t[0])],
-                          volume->surface[static_cast<std::size_t>(t[1])],
-                          volume->surface[static_cast<std::size_t>(t[2])]});
-        add_surface(name, std::move(skin));
-      }
+      add_surface("upper", embedded_skin(up, upper.triangles));
+      add_surface("lower", embedded_skin(down, lower.triangles));
     }
   }
   std::string json_fields() override {

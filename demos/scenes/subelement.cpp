@@ -61,12 +61,7 @@ class SubElement final : public BulletScene {
       for (Index v = 0; v < ball.surface.vertices.cols(); ++v)
         ball.top = std::max(ball.top, ball.surface.vertices(1, v));
       if (b == 1) add_soft_surface(ball);
-      if (ball.soft.empty()) {
-        for (const auto& t : ball.surface.triangles)
-          ball.skin.push_back({ball.volume.surface[static_cast<std::size_t>(t[0])],
-                               ball.volume.surface[static_cast<std::size_t>(t[1])],
-                               ball.volume.surface[static_cast<std::size_t>(t[2])]});
-      }
+      if (ball.soft.empty()) ball.skin = embedded_skin(ball.volume, ball.surface.triangles);
       add_surface(b == 0 ? "nodes only" : "soft-bound refined surface", ball.skin);
       ball.probe = m_world.add_body(probe, 0.0, probe_pose(ball, 0.0), btVector3(0, 0, 0), kProbeGroup,
                                     btBroadphaseProxy::AllFilter);
