@@ -5,8 +5,10 @@
 
 namespace sinew {
 
-void HardBindings::add_linear(Index particle, std::span<const Index> parents, std::span<const double> weights) {
-  const Index id = m_added;
+namespace {
+
+// Throws naming binding `id` unless its parents and weights make a barycentric embedding.
+void check_linear(Index id, Index particle, std::span<const Index> parents, std::span<const double> weights) {
   if (parents.empty()) fail("binding ", id, ": no parents");
   if (parents.size() != weights.size())
     fail("binding ", id, ": ", parents.size(), " parents but ", weights.size(), " weights");
@@ -19,8 +21,26 @@ void HardBindings::add_linear(Index particle, std::span<const Index> parents, st
   // Weights are barycentric: they must reproduce constants (a translated parent set moves the bound
   // point by the same amount), which is what makes W^T conserve momentum.
   if (std::abs(sum - 1.0) > 1e-9) fail("binding ", id, ": weights sum to ", sum, ", expected 1");
+}
+
+}  // namespace
+
+void HardBindings::add_linear(Index particle, std::span<const Index> parents, std::span<const double> weights) {
+  const Index id = m_added;
+  check_linear(id, particle, parents, weights);
   m_linear.add(id, particle, parents, weights);
   ++m_added;
+}
+
+void HardBindings::replace_linear(Index particle, std::span<const Index> parents, std::span<const double> weights) {
+  const Index k = linear_binding_of(particle);
+  if (k < 0) fail("re-embedding: particle ", particle, " is not a point embedded in particles");
+  check_linear(m_linear.id(k), particle, parents, weights);
+  for (const Index parent : parents)
+    if (is_bound(parent))
+      fail("binding ", m_linear.id(k), ": parent ", parent, " of particle ", particle,
+           " is itself hard-bound; re-embed in free particles");
+  m_linear.replace(k, parents, weights);
 }
 
 void HardBindings::add_rigid(Index particle, Index body, const Vec3& r0) {

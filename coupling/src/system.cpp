@@ -107,6 +107,49 @@ void System::set_rigid_body_mass(Index body, bool kinematic, double mass, const 
   note_topology_change();
 }
 
+void System::reembed(Index particle, std::span<const Index> parents, std::span<const double> weights) {
+  const Index n = m_particles.size();
+  if (particle < 0 || particle >= n) fail("reembed: particle ", particle, " does not exist (there are ", n, ")");
+  if (m_input_mass[particle] != 0.0)
+    fail("reembed: particle ", particle, " has mass ", m_input_mass[particle],
+         "; only massless embedded points move in material space");
+  for (const Index parent : parents)
+    if (parent < 0 || parent >= n || m_input_kind[parent] == ParticleKind::removed)
+      fail("reembed: parent ", parent, " of particle ", particle, " is not a particle");
+  if (!m_finalized || m_topology_changed) {
+    // Not set up: the next set-up flattens and distributes from the binding as it is now.
+    HardBindings before = m_hard;
+    try {
+      if (!m_hard.remove(particle)) fail("reembed: particle ", particle, " is not hard-bound");
+      m_hard.add_linear(particle, parents, weights);
+    } catch (...) {
+      m_hard = std::move(before);
+      throw;
+    }
+    note_topology_change();
+    return;
+  }
+  for (const Index parent : parents)
+    if (m_particles.kind[parent] != ParticleKind::free && m_particles.kind[parent] != ParticleKind::kinematic)
+      fail("reembed: parent ", parent, " of particle ", particle, " is bound (soft or hard); re-embed in free "
+           "or kinematic particles");
+  m_hard.replace_linear(particle, parents, weights);
+  // Soft particles tied to it keep their present mass.
+  for (Index s = 0; s < m_soft.size(); ++s)
+    if (m_soft.target[s] == particle && m_soft.mass_override[s] == 0.0)
+      m_soft.mass_override[s] = m_particles.mass[m_soft.particle[s]];
+  const Index k = m_hard.linear_binding_of(particle);
+  const LinearBindings& linear = m_hard.linear();
+  m_particles.x.col(particle) = linear.point_velocity(k, m_particles.x, m_bodies);  // W is linear: x_e = W x
+  m_particles.v.col(particle) = linear.point_velocity(k, m_particles.v, m_bodies);
+  m_inverse_effective_mass[particle] = linear.inverse_effective_mass(k, m_particles.mass, m_bodies);
+  m_effective_mass[particle] =
+      m_inverse_effective_mass[particle] > 0.0 ? 1.0 / m_inverse_effective_mass[particle] : kInfinity;
+  m_springs.set_damping_from_masses(m_inverse_effective_mass);
+  m_force_stable_dt.clear();
+  wake();
+}
+
 bool System::unbind(Index particle) {
   note_topology_change();
   return m_hard.remove(particle);

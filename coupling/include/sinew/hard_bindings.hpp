@@ -35,6 +35,10 @@ class HardBindings {
   /// mass (in the principal frame).
   void add_rigid(Index particle, Index body, const Vec3& r0);
 
+  /// After flatten(): gives the embedded point `particle` new parents and weights in place (checked as
+  /// add_linear; the parents must not be bound), keeping everything else set up (plastic flow,
+  /// Sifakis et al. 2007 figure 9).
+  void replace_linear(Index particle, std::span<const Index> parents, std::span<const double> weights);
   /// Removes the hard binding of `particle`; returns false if it had none. Call flatten() afterwards.
   bool remove(Index particle);
 

@@ -251,6 +251,16 @@ class System {
   /// single node, weight 1) by barycentric weights that sum to one; an end for binding springs.
   /// Returns the new particle.
   Index add_embedded_point(std::span<const Index> parents, std::span<const double> weights);
+  /// Re-embeds a massless point embedded in particles (a hard-bound target) in new parents, at any time
+  /// (plastic flow moves targets in material space, figure 9): x_e and v_e become W x and W v of the
+  /// new parents. Nothing else changes, so no set-up follows: the point carries no mass, the soft
+  /// particles tied to it keep the mass they have now (a soft particle whose mass followed its
+  /// target's effective mass keeps its present value from here on), and the binding springs at it are
+  /// damped from its new effective mass. Mass, momentum and angular momentum are unchanged. Points that
+  /// were bound to this one were flattened onto its old parents at set-up and stay there. Throws naming
+  /// the particle, changing nothing, when it is not such a point, has mass, or the parents or weights
+  /// are not a barycentric embedding in free or kinematic particles.
+  void reembed(Index particle, std::span<const Index> parents, std::span<const double> weights);
   /// Releases a hard-bound particle: it becomes free with the mass it was created with and keeps its
   /// current position and velocity. Returns false if it was not hard-bound.
   bool unbind(Index particle);

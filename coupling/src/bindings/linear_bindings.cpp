@@ -22,6 +22,21 @@ void LinearBindings::remove(Index k) {
   m_id.erase(m_id.begin() + k);
 }
 
+void LinearBindings::replace(Index k, std::span<const Index> parents, std::span<const double> weights) {
+  const Index begin = m_offset[k], end = m_offset[k + 1];
+  const Index grow = static_cast<Index>(parents.size()) - (end - begin);
+  if (grow > 0) {
+    m_parent.insert(m_parent.begin() + end, static_cast<std::size_t>(grow), Index{0});
+    m_weight.insert(m_weight.begin() + end, static_cast<std::size_t>(grow), 0.0);
+  } else if (grow < 0) {
+    m_parent.erase(m_parent.begin() + end + grow, m_parent.begin() + end);
+    m_weight.erase(m_weight.begin() + end + grow, m_weight.begin() + end);
+  }
+  for (std::size_t j = static_cast<std::size_t>(k) + 1; j < m_offset.size(); ++j) m_offset[j] += grow;
+  std::copy(parents.begin(), parents.end(), m_parent.begin() + begin);
+  std::copy(weights.begin(), weights.end(), m_weight.begin() + begin);
+}
+
 void LinearBindings::clear() {
   m_id.clear();
   m_particle.clear();

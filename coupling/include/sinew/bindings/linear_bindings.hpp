@@ -30,6 +30,8 @@ class LinearBindings final : public BindingKind {
   /// Appends a binding (weights already checked).
   void add(Index id, Index particle, std::span<const Index> parents, std::span<const double> weights);
   void remove(Index k) override;
+  /// Gives binding k new parents and weights (already checked), keeping its place and id.
+  void replace(Index k, std::span<const Index> parents, std::span<const double> weights);
   void clear();
 
   void clamp_positions(Vectors3& x, const Vectors3& body_x) const override;
