@@ -16,9 +16,9 @@
 namespace sinew {
 namespace {
 
-constexpr double kHalf = 0.1;       // the block is [-kHalf, kHalf]^3
-constexpr double kSpacing = 0.05;   // lattice cells
-constexpr double kYield = 0.01;     // L_y
+constexpr double kHalf = 0.1;        // the block is [-kHalf, kHalf]^3
+constexpr double kSpacing = 0.05;    // lattice cells
+constexpr double kYield = 0.01;      // L_y
 constexpr double kStiffness = 50.0;  // binding springs
 
 // A free block in zero gravity with targets on its top face (a 3 x 3 grid) and a soft particle on a

@@ -131,7 +131,8 @@ void System::reembed(Index particle, std::span<const Index> parents, std::span<c
   }
   for (const Index parent : parents)
     if (m_particles.kind[parent] != ParticleKind::free && m_particles.kind[parent] != ParticleKind::kinematic)
-      fail("reembed: parent ", parent, " of particle ", particle, " is bound (soft or hard); re-embed in free "
+      fail("reembed: parent ", parent, " of particle ", particle,
+           " is bound (soft or hard); re-embed in free "
            "or kinematic particles");
   m_hard.replace_linear(particle, parents, weights);
   // Soft particles tied to it keep their present mass.
