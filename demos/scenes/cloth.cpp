@@ -205,4 +205,58 @@ RefinedTriangles refined_strip(int nx, int ny, double width, double height, cons
   return mesh;
 }
 
+RefinedTriangles refine_near(RefinedTriangles mesh, std::span<const double> reaches,
+                             const std::function<double(const Vec3&)>& distance) {
+  for (const double reach : reaches) {
+    std::vector<Index> chosen;
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+      Vec3 c = Vec3::Zero();
+      for (const Index v : mesh.triangles[t]) c += mesh.vertices.col(v) / 3.0;
+      if (distance(c) < reach) chosen.push_back(static_cast<Index>(t));
+    }
+    mesh = red_refine(mesh, chosen);
+  }
+  return mesh;
+}
+
+SoftCopy add_soft_copy(System& system, const RefinedTriangles& mesh, const std::vector<Index>& targets,
+                       double stiffness, std::uint32_t mask, double membrane_mu) {
+  SoftCopy copy;
+  std::vector<char> refined(static_cast<std::size_t>(mesh.vertices.cols()), 0);
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
+    if (mesh.level[t] > 0)
+      for (const Index v : mesh.triangles[t]) refined[static_cast<std::size_t>(v)] = 1;
+  copy.drawn = targets;
+  for (Index v = 0; v < mesh.vertices.cols(); ++v) {
+    if (!refined[static_cast<std::size_t>(v)]) continue;
+    const Index s = system.add_particle(mesh.vertices.col(v), Vec3::Zero(), 0.0);
+    SoftBindingSettings binding;
+    binding.particle = s;
+    binding.target = targets[static_cast<std::size_t>(v)];
+    binding.coupling = SoftCoupling::spring;
+    binding.stiffness = stiffness;
+    system.add_soft_binding(binding);
+    system.set_collision_filter(s, kDefaultCollisionGroup, mask);
+    copy.soft.push_back(s);
+    copy.soft_target.push_back(binding.target);
+    copy.drawn[static_cast<std::size_t>(v)] = s;
+  }
+  std::vector<std::array<Index, 3>> skin_of_soft;
+  for (const auto& tri : mesh.triangles) {
+    const std::array<Index, 3> drawn{copy.drawn[static_cast<std::size_t>(tri[0])],
+                                     copy.drawn[static_cast<std::size_t>(tri[1])],
+                                     copy.drawn[static_cast<std::size_t>(tri[2])]};
+    copy.skin.push_back(drawn);
+    if (refined[static_cast<std::size_t>(tri[0])] && refined[static_cast<std::size_t>(tri[1])] &&
+        refined[static_cast<std::size_t>(tri[2])])
+      skin_of_soft.push_back(drawn);
+  }
+  // Section 3.1: soft-bound particles may carry forces of their own.
+  TriangleMembraneSettings membrane;
+  membrane.mu = membrane_mu;
+  membrane.lambda = membrane_mu;
+  copy.membrane = &system.add_force(std::make_unique<TriangleMembrane>(skin_of_soft, system.particles().x, membrane));
+  return copy;
+}
+
 }  // namespace sinew::scenes

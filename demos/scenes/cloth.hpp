@@ -2,9 +2,12 @@
 #pragma once
 
 #include "sinew/builders.hpp"
+#include "sinew/forces/triangle_membrane.hpp"
 #include "sinew/refinement.hpp"
 
 #include <array>
+#include <cstdint>
+#include <functional>
 #include <vector>
 
 namespace sinew::scenes {
@@ -66,5 +69,23 @@ ClosedSurface capsule_surface(const Vec3& a, const Vec3& b, double radius, int a
 /// corner), nx x ny nodes, two triangles a cell, red-refined once where a triangle's centre is within
 /// 0.3 width of the middle and twice within 0.15: T-junctions along both borders of each level.
 RefinedTriangles refined_strip(int nx, int ny, double width, double height, const Vec3& origin = Vec3::Zero());
+
+/// Red-refines `mesh` once for each reach in turn (figure 4): the triangles whose centre c has
+/// distance(c) < reach.
+RefinedTriangles refine_near(RefinedTriangles mesh, std::span<const double> reaches,
+                             const std::function<double(const Vec3&)>& distance);
+
+/// A soft-bound copy of a refined surface (figure 7): a particle at each vertex of a refined triangle
+/// (level > 0), tied to that vertex's target by a binding spring of `stiffness` (it inherits the
+/// target's elastic accelerations), colliding only with the groups in `mask`, and a membrane
+/// (mu = lambda = membrane_mu) among them so that a small body dents the copy instead of parting it.
+struct SoftCopy {
+  std::vector<Index> soft, soft_target;    ///< the soft particles and their targets
+  std::vector<Index> drawn;                ///< per vertex: its soft particle, or its target
+  std::vector<std::array<Index, 3>> skin;  ///< every triangle of the mesh, drawn from `drawn`
+  TriangleMembrane* membrane = nullptr;
+};
+SoftCopy add_soft_copy(System& system, const RefinedTriangles& mesh, const std::vector<Index>& targets,
+                       double stiffness, std::uint32_t mask, double membrane_mu);
 
 }  // namespace sinew::scenes

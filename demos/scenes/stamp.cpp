@@ -199,16 +199,9 @@ class Stamp final : public BulletScene {
     Vectors3 top_vertices(3, static_cast<Index>(used.size()));
     for (std::size_t k = 0; k < used.size(); ++k)
       top_vertices.col(static_cast<Index>(k)) = block.surface.vertices.col(used[k]);
-    RefinedTriangles mesh = unrefined(top_vertices, top);
-    for (const double reach : {kReach1, kReach2, kReach3}) {
-      std::vector<Index> chosen;
-      for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
-        Vec3 c = Vec3::Zero();
-        for (const Index v : mesh.triangles[t]) c += mesh.vertices.col(v) / 3.0;
-        if (to_cross(block, c.x(), c.z()) < reach) chosen.push_back(static_cast<Index>(t));
-      }
-      mesh = red_refine(mesh, chosen);
-    }
+    const double reaches[3] = {kReach1, kReach2, kReach3};
+    const RefinedTriangles mesh = refine_near(unrefined(top_vertices, top), reaches,
+                                              [&](const Vec3& c) { return to_cross(block, c.x(), c.z()); });
     // The lattice's nodes and the targets meet nothing (the ties hold the block; its lattice reaches
     // below the ground, where its lowest tets hold no material); the soft particles meet the stamp.
     const std::uint32_t stamp = static_cast<std::uint32_t>(kStampGroup);
@@ -222,47 +215,20 @@ class Stamp final : public BulletScene {
       system().set_collision_filter(t, kDefaultCollisionGroup, 0);
       block.targets.push_back(t);
     }
-    std::vector<char> refined(static_cast<std::size_t>(mesh.vertices.cols()), 0);
-    for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
-      if (mesh.level[t] > 0)
-        for (const Index v : mesh.triangles[t]) refined[static_cast<std::size_t>(v)] = 1;
-    std::vector<Index> drawn(block.targets);
+    SoftCopy copy = add_soft_copy(system(), mesh, block.targets, kSoftStiffness, stamp, kSkinMu);
+    for (std::size_t k = 0; k < copy.soft.size(); ++k) block.plastic->track(copy.soft[k], copy.soft_target[k]);
+    // The top's height is read from the targets of the coarse top away from the stamp.
     for (Index v = 0; v < mesh.vertices.cols(); ++v) {
       const Index target = block.targets[static_cast<std::size_t>(v)];
-      if (!refined[static_cast<std::size_t>(v)]) {
-        if (to_cross(block, mesh.vertices(0, v), mesh.vertices(2, v)) > 2.0 * kReach1) block.coarse.push_back(target);
-        continue;
-      }
-      const Index s = system().add_particle(mesh.vertices.col(v), Vec3::Zero(), 0.0);
-      SoftBindingSettings binding;
-      binding.particle = s;
-      binding.target = target;
-      binding.coupling = SoftCoupling::spring;
-      binding.stiffness = kSoftStiffness;
-      system().add_soft_binding(binding);
-      system().set_collision_filter(s, kDefaultCollisionGroup, stamp);
-      block.plastic->track(s, target);
-      block.soft.push_back(s);
-      block.soft_target.push_back(target);
-      drawn[static_cast<std::size_t>(v)] = s;
+      if (copy.drawn[static_cast<std::size_t>(v)] == target &&
+          to_cross(block, mesh.vertices(0, v), mesh.vertices(2, v)) > 2.0 * kReach1)
+        block.coarse.push_back(target);
     }
-    std::vector<std::array<Index, 3>> skin_of_soft;
-    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
-      const auto& tri = mesh.triangles[t];
-      const std::array<Index, 3> drawn_tri{drawn[static_cast<std::size_t>(tri[0])],
-                                           drawn[static_cast<std::size_t>(tri[1])],
-                                           drawn[static_cast<std::size_t>(tri[2])]};
-      block.skin.push_back(drawn_tri);
-      if (refined[static_cast<std::size_t>(tri[0])] && refined[static_cast<std::size_t>(tri[1])] &&
-          refined[static_cast<std::size_t>(tri[2])])
-        skin_of_soft.push_back(drawn_tri);
-    }
+    block.soft = std::move(copy.soft);
+    block.soft_target = std::move(copy.soft_target);
+    block.skin = std::move(copy.skin);
+    block.membrane = copy.membrane;
     for (const auto& t : embedded_skin(block.volume, sides)) block.skin.push_back(t);
-    TriangleMembraneSettings membrane;
-    membrane.mu = kSkinMu;
-    membrane.lambda = kSkinMu;
-    block.membrane =
-        &system().add_force(std::make_unique<TriangleMembrane>(skin_of_soft, system().particles().x, membrane));
   }
   // Mean height of the coarse top's targets away from the stamp [m].
   double top_height(const Block& block) const {

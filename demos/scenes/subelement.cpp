@@ -125,17 +125,11 @@ class SubElement final : public BulletScene {
   // particle tied to each. The lattice's nodes stop meeting the probe (its collision group is out of
   // their mask); they still rest on the ground.
   void add_soft_surface(Ball& ball) {
-    RefinedTriangles mesh = unrefined(ball.surface.vertices, ball.surface.triangles);
-    for (const double reach : {kFine, kFiner}) {
-      std::vector<Index> chosen;
-      for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
-        Vec3 c = Vec3::Zero();
-        for (const Index v : mesh.triangles[t]) c += mesh.vertices.col(v) / 3.0;
-        if (c.y() > ball.top - kRadius && std::hypot(c.x() - (ball.x + kOff), c.z() - kOff) < reach)
-          chosen.push_back(static_cast<Index>(t));
-      }
-      mesh = red_refine(mesh, chosen);
-    }
+    const double reaches[2] = {kFine, kFiner};
+    const RefinedTriangles mesh =
+        refine_near(unrefined(ball.surface.vertices, ball.surface.triangles), reaches, [&](const Vec3& c) {
+          return c.y() > ball.top - kRadius ? std::hypot(c.x() - (ball.x + kOff), c.z() - kOff) : kInfinity;
+        });
     const Index coarse = ball.surface.vertices.cols();
     ball.target.assign(static_cast<std::size_t>(mesh.vertices.cols()), -1);
     for (Index v = 0; v < coarse; ++v)
@@ -152,44 +146,13 @@ class SubElement final : public BulletScene {
     const std::uint32_t probe = static_cast<std::uint32_t>(kProbeGroup);
     for (const Index i : ball.volume.lattice)
       system().set_collision_filter(i, kDefaultCollisionGroup, kAllCollisionGroups & ~probe);
-    // Soft particles where the surface was refined (the vertices of its split triangles): they meet
-    // the probe alone; elsewhere the surface is drawn from its targets.
-    std::vector<char> refined(static_cast<std::size_t>(mesh.vertices.cols()), 0);
-    for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
-      if (mesh.level[t] > 0)
-        for (const Index v : mesh.triangles[t]) refined[static_cast<std::size_t>(v)] = 1;
-    std::vector<Index> drawn(ball.target);
-    for (Index v = 0; v < mesh.vertices.cols(); ++v) {
-      if (!refined[static_cast<std::size_t>(v)]) continue;
-      const Index s = system().add_particle(mesh.vertices.col(v), Vec3::Zero(), 0.0);
-      SoftBindingSettings binding;
-      binding.particle = s;
-      binding.target = ball.target[static_cast<std::size_t>(v)];
-      binding.coupling = SoftCoupling::spring;
-      binding.stiffness = kSoftStiffness;
-      system().add_soft_binding(binding);
-      system().set_collision_filter(s, kDefaultCollisionGroup, probe);
-      ball.soft.push_back(s);
-      ball.soft_target.push_back(binding.target);
-      drawn[static_cast<std::size_t>(v)] = s;
-    }
-    std::vector<std::array<Index, 3>> skin_of_soft;
-    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
-      const auto& tri = mesh.triangles[t];
-      const std::array<Index, 3> drawn_tri{drawn[static_cast<std::size_t>(tri[0])],
-                                           drawn[static_cast<std::size_t>(tri[1])],
-                                           drawn[static_cast<std::size_t>(tri[2])]};
-      ball.skin.push_back(drawn_tri);
-      if (refined[static_cast<std::size_t>(tri[0])] && refined[static_cast<std::size_t>(tri[1])] &&
-          refined[static_cast<std::size_t>(tri[2])])
-        skin_of_soft.push_back(drawn_tri);
-    }
-    // The soft copy of the surface holds together as a membrane (section 3.1: soft-bound particles may
-    // carry forces of their own), so the probe dents it instead of parting its particles.
-    TriangleMembraneSettings membrane;
-    membrane.mu = kSkinMu;
-    membrane.lambda = kSkinMu;
-    system().add_force(std::make_unique<TriangleMembrane>(skin_of_soft, system().particles().x, membrane));
+    // Soft particles where the surface was refined: they meet the probe alone; elsewhere the surface
+    // is drawn from its targets. The membrane among them makes the probe dent the copy instead of
+    // parting its particles.
+    SoftCopy copy = add_soft_copy(system(), mesh, ball.target, kSoftStiffness, probe, kSkinMu);
+    ball.soft = std::move(copy.soft);
+    ball.soft_target = std::move(copy.soft_target);
+    ball.skin = std::move(copy.skin);
   }
 
   // Largest distance of a soft particle from its target now [m] (0 for the left ball).
