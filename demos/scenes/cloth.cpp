@@ -179,10 +179,7 @@ ClosedSurface capsule_surface(const Vec3& a, const Vec3& b, double radius, int a
   return capsule;
 }
 
-RefinedTriangles refined_strip(int nx, int ny, double width, double height, const Vec3& origin) {
-  Vectors3 v(3, nx * ny);
-  for (int j = 0; j < ny; ++j)
-    for (int i = 0; i < nx; ++i) v.col(j * nx + i) = origin + Vec3(width * i / (nx - 1), height * j / (ny - 1), 0);
+std::vector<std::array<Index, 3>> grid_triangles(int nx, int ny) {
   std::vector<std::array<Index, 3>> triangles;
   for (int j = 0; j + 1 < ny; ++j)
     for (int i = 0; i + 1 < nx; ++i) {
@@ -190,7 +187,14 @@ RefinedTriangles refined_strip(int nx, int ny, double width, double height, cons
       triangles.push_back({a, b, c});
       triangles.push_back({a, c, d});
     }
-  RefinedTriangles mesh = unrefined(v, triangles);
+  return triangles;
+}
+
+RefinedTriangles refined_strip(int nx, int ny, double width, double height, const Vec3& origin) {
+  Vectors3 v(3, nx * ny);
+  for (int j = 0; j < ny; ++j)
+    for (int i = 0; i < nx; ++i) v.col(j * nx + i) = origin + Vec3(width * i / (nx - 1), height * j / (ny - 1), 0);
+  RefinedTriangles mesh = unrefined(v, grid_triangles(nx, ny));
   const double middle = origin.x() + 0.5 * width;
   for (int level = 0; level < 2; ++level) {
     const double reach = (level == 0 ? 0.3 : 0.15) * width;

@@ -65,6 +65,10 @@ std::vector<std::array<Index, 3>> embedded_skin(const EmbeddedVolume& volume,
 /// (its pole one vertex); outward-facing, vertices shared (a closed surface).
 ClosedSurface capsule_surface(const Vec3& a, const Vec3& b, double radius, int around, int along, int cap);
 
+/// The triangles of an nx x ny grid of vertices numbered j * nx + i, each cell split along its
+/// diagonal from (i, j) to (i + 1, j + 1).
+std::vector<std::array<Index, 3>> grid_triangles(int nx, int ny);
+
 /// Figure 5's sheet: a strip of `width` x `height` in the x-y plane from `origin` (its lower left
 /// corner), nx x ny nodes, two triangles a cell, red-refined once where a triangle's centre is within
 /// 0.3 width of the middle and twice within 0.15: T-junctions along both borders of each level.
