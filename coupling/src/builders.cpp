@@ -179,6 +179,7 @@ std::vector<Index> add_volume(System& system, const Vectors3& vertices, const st
   settings.young_modulus = m.young_modulus;
   settings.poisson_ratio = m.poisson_ratio;
   settings.beta = m.damping;
+  settings.implicit = m.implicit;
   system.add_force(std::make_unique<CorotatedTets>(std::move(mapped), system.particles().x, settings));
   system.add_collision_surface(boundary_triangles(tets, particle));
   return particle;
@@ -215,6 +216,7 @@ EmbeddedVolume add_embedded_volume(System& system, const Vectors3& surface_verti
   settings.young_modulus = m.young_modulus;
   settings.poisson_ratio = m.poisson_ratio;
   settings.beta = m.damping;
+  settings.implicit = m.implicit;
   settings.volume_fraction = lattice.fill;
   system.add_force(std::make_unique<CorotatedTets>(mapped, system.particles().x, settings));
   system.add_collision_surface(boundary_triangles(lattice.tets, out.lattice));

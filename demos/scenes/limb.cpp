@@ -50,6 +50,7 @@ class Limb final : public BulletScene {
     material.young_modulus = 3e4;
     material.poisson_ratio = 0.3;
     material.damping = 0.01;
+    material.implicit = true;
     m_flesh = add_embedded_volume(system(), arm.vertices, arm.triangles, kSpacing, material);
     for (const Index i : m_flesh.lattice) {
       system().set_collision_filter(i, kDefaultCollisionGroup, kAllCollisionGroups & ~std::uint32_t(bones));

@@ -47,6 +47,10 @@ struct VolumeMaterial {
   double young_modulus = 5e4;  ///< [Pa]
   double poisson_ratio = 0.3;
   double damping = 0.01;  ///< stiffness-proportional damping [s]
+  /// CorotatedTetsSettings::implicit: with StepSettings::implicit_elasticity (or the automatic scheme
+  /// choosing it), the tets join the solves through their warped stiffness and stop limiting the
+  /// substep.
+  bool implicit = false;
 };
 std::vector<Index> add_volume(System& system, const Vectors3& vertices, const std::vector<std::array<Index, 4>>& tets,
                               const VolumeMaterial& material);

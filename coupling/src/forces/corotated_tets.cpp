@@ -207,15 +207,18 @@ void CorotatedTets::add_elastic_differentials(const Vectors3& dx, Vectors3& df) 
   }
 }
 
-void CorotatedTets::add_damping_forces(const Vectors3& v, Vectors3& f) const {
-  const double beta = m_settings.beta;
-  if (beta == 0.0) return;
+void CorotatedTets::add_damping_forces(const Vectors3& v, Vectors3& f) const { add_implicit_products(v, 0.0, f); }
+
+// f += -(beta + b) V R (2 mu sym(R^T Fdot) + lambda tr(R^T Fdot) I) Dm^-T per tet: D v + b K+ v.
+void CorotatedTets::add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
+  const double scale = m_settings.beta + (m_settings.implicit ? b : 0.0);
+  if (scale == 0.0) return;
   for (std::size_t e = 0; e < m_tets.size(); ++e) {
     const Mat3& R = m_state[e].R;
     const Mat3 RtFdot = R.transpose() * (edge_matrix(v, m_tets[e]) * m_dm_inv[e]);
     const Mat3 Edot = 0.5 * (RtFdot + RtFdot.transpose());
     const Mat3 Sdot = 2.0 * m_mu * Edot + (m_lambda * Edot.trace()) * Mat3::Identity();
-    scatter_h(m_tets[e], (-m_volume[e] * beta) * R * Sdot * m_dm_inv[e].transpose(), f);
+    scatter_h(m_tets[e], (-m_volume[e] * scale) * R * Sdot * m_dm_inv[e].transpose(), f);
   }
 }
 
@@ -223,8 +226,7 @@ void CorotatedTets::add_damping_forces(const Vectors3& v, Vectors3& f) const {
 //   |Edot|^2 = (|u|^2 |g_a|^2 + (u.g_a)^2) / 2,  tr(Edot) = u.g_a,
 // so the trace of the 3x3 block -D_aa is V_e beta |g_a|^2 (3 mu + mu + lambda), independent of R.
 void CorotatedTets::add_diagonal(double b, VectorXd& diag) const {
-  (void)b;  // no definite differential: the implicit matrix is D
-  const double beta = m_settings.beta;
+  const double beta = m_settings.beta + (m_settings.implicit ? b : 0.0);  // D + b K+: the same operator
   if (beta == 0.0) return;
   const double modulus = 4.0 * m_mu + m_lambda;
   for (std::size_t e = 0; e < m_tets.size(); ++e) {

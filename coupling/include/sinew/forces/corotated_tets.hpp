@@ -17,6 +17,10 @@ struct CorotatedTetsSettings {
   /// and damping are scaled by fill, as its lumped mass is, so the body is as stiff and as heavy as
   /// its material and the stable step is the whole tet's.
   std::vector<double> volume_fraction{};
+  /// Offer the warped-stiffness differential K+ (below), so that StepSettings::implicit_elasticity
+  /// treats the tets implicitly and their stable step stops limiting the substep. Off (the default),
+  /// the tets stay explicit.
+  bool implicit = false;
 };
 
 class CorotatedTets final : public Force, public ImplicitBlocks {
@@ -36,10 +40,16 @@ class CorotatedTets final : public Force, public ImplicitBlocks {
   void add_elastic_differentials(const Vectors3& dx, Vectors3& df) const override;
   void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
   bool has_damping() const override { return m_settings.beta > 0.0; }
+  /// K+ is the warped stiffness: the linear elasticity of the rest state turned by each tet's R,
+  ///   dP = R (2 mu sym(R^T dF) + lambda tr(R^T dF) I),   df = -V dP Dm^-T  (R held fixed),
+  /// symmetric and negative semi-definite (the exact differential at rest, where R = I; away from it
+  /// it leaves out R's own change). The damping D = beta K+ uses the same operator.
+  bool has_definite_differentials() const override { return m_settings.implicit; }
+  void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
   double stable_dt(const VectorXd& m_eff) const override;
   bool can_remove_elements() const override { return true; }
   Index remove_elements_touching(std::span<const std::uint8_t> removed) override;
-  /// The scalar diagonal of D only (no definite differential, so b is 0): no 3x3 or pair blocks.
+  /// The scalar diagonal of D + b K+ (b is 0 unless implicit): no 3x3 or pair blocks.
   const ImplicitBlocks* implicit_blocks() const override { return this; }
   void add_diagonal(double b, VectorXd& diag) const override;
 
