@@ -53,11 +53,14 @@ Mat3 edge_matrix(const Vectors3& x, const std::array<Index, 4>& v) {
 }
 
 /// Scatters H = [f1 f2 f3] (3x3) to the four vertices, f0 = -(f1 + f2 + f3).
-void scatter_h(const std::array<Index, 4>& v, const Mat3& h, Vectors3& f) {
-  f.col(v[0]) -= h.rowwise().sum();
-  f.col(v[1]) += h.col(0);
-  f.col(v[2]) += h.col(1);
-  f.col(v[3]) += h.col(2);
+void scatter_h(const std::array<Index, 4>& v, const Mat3& h, double* out) {
+  const Vec3 first = h.rowwise().sum();
+  for (int k = 0; k < 3; ++k) {
+    out[3 * v[0] + k] -= first[k];
+    out[3 * v[1] + k] += h(k, 0);
+    out[3 * v[2] + k] += h(k, 1);
+    out[3 * v[3] + k] += h(k, 2);
+  }
 }
 
 // Equal to the bit: F == G would take -0 for +0, whose SVDs may differ in sign choices.
@@ -135,6 +138,7 @@ CorotatedTets::CorotatedTets(std::vector<Tet> tets, const Vectors3& rest_x, cons
   detail::Incidence incidence = detail::Incidence::build(m_tets, detail::index_span(m_tets));
   m_incidence_offsets = std::move(incidence.offsets);
   m_incidence = std::move(incidence.elements);
+  m_chunks = ChunkedScatter(m_tets, detail::index_span(m_tets));
 }
 
 void CorotatedTets::validate(Index particle_count) const {
@@ -146,18 +150,21 @@ void CorotatedTets::validate(Index particle_count) const {
 // checks): each tet keeps the F its state was computed from and reuses it when F is the same to the
 // bit, which gives exactly the bits a new SVD would.
 void CorotatedTets::update_position_state(const Vectors3& x) {
-  for (std::size_t e = 0; e < m_tets.size(); ++e) {
-    const Mat3 F = edge_matrix(x, m_tets[e]) * m_dm_inv[e];
-    TetState& s = m_state[e];
-    if (same_bits(F, s.F)) continue;
-    const detail::SignedSvd svd = detail::signed_svd(F);
-    s.F = F;
-    s.U = svd.U;
-    s.V = svd.V;
-    s.R = svd.U * svd.V.transpose();
-    s.sigma = svd.sigma;
-    s.phat = diagonal_stress(svd.sigma, m_mu, m_lambda);
-  }
+  // Each tet writes its own state only: any partition gives the same bits.
+  parallel::for_ranges(static_cast<Index>(m_tets.size()), [&](Index begin, Index end) {
+    for (std::size_t e = static_cast<std::size_t>(begin); e < static_cast<std::size_t>(end); ++e) {
+      const Mat3 F = edge_matrix(x, m_tets[e]) * m_dm_inv[e];
+      TetState& s = m_state[e];
+      if (same_bits(F, s.F)) continue;
+      const detail::SignedSvd svd = detail::signed_svd(F);
+      s.F = F;
+      s.U = svd.U;
+      s.V = svd.V;
+      s.R = svd.U * svd.V.transpose();
+      s.sigma = svd.sigma;
+      s.phat = diagonal_stress(svd.sigma, m_mu, m_lambda);
+    }
+  });
 }
 
 double CorotatedTets::potential_energy(const Vectors3& x) const {
@@ -172,20 +179,20 @@ double CorotatedTets::potential_energy(const Vectors3& x) const {
 }
 
 void CorotatedTets::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
-  for (std::size_t e = 0; e < m_tets.size(); ++e) {
+  for_each_tet(f, [&](std::size_t e) {
     const Mat3 F = edge_matrix(x, m_tets[e]) * m_dm_inv[e];
     const TetState& s = m_state[e];
     const Mat3 P = same_bits(F, s.F) ? first_piola(s.U, s.phat, s.V) : [&] {
       const detail::SignedSvd svd = detail::signed_svd(F);
       return first_piola(svd.U, diagonal_stress(svd.sigma, m_mu, m_lambda), svd.V);
     }();
-    scatter_h(m_tets[e], (-m_volume[e]) * P * m_dm_inv[e].transpose(), f);
-  }
+    return Mat3((-m_volume[e]) * P * m_dm_inv[e].transpose());
+  });
 }
 
 void CorotatedTets::add_elastic_differentials(const Vectors3& dx, Vectors3& df) const {
   constexpr int kPairs[3][2] = {{0, 1}, {0, 2}, {1, 2}};
-  for (std::size_t e = 0; e < m_tets.size(); ++e) {
+  for_each_tet(df, [&](std::size_t e) {
     const TetState& s = m_state[e];
     const Mat3 dF_hat = s.U.transpose() * (edge_matrix(dx, m_tets[e]) * m_dm_inv[e]) * s.V;
     Mat3 dP_hat;
@@ -203,8 +210,8 @@ void CorotatedTets::add_elastic_differentials(const Vectors3& dx, Vectors3& df) 
       dP_hat(j, i) = b * dF_hat(i, j) + a * dF_hat(j, i);
     }
     const Mat3 dP = s.U * dP_hat * s.V.transpose();
-    scatter_h(m_tets[e], (-m_volume[e]) * dP * m_dm_inv[e].transpose(), df);
-  }
+    return Mat3((-m_volume[e]) * dP * m_dm_inv[e].transpose());
+  });
 }
 
 void CorotatedTets::add_damping_forces(const Vectors3& v, Vectors3& f) const { add_implicit_products(v, 0.0, f); }
@@ -213,13 +220,21 @@ void CorotatedTets::add_damping_forces(const Vectors3& v, Vectors3& f) const { a
 void CorotatedTets::add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
   const double scale = m_settings.beta + (m_settings.implicit ? b : 0.0);
   if (scale == 0.0) return;
-  for (std::size_t e = 0; e < m_tets.size(); ++e) {
+  for_each_tet(f, [&](std::size_t e) {
     const Mat3& R = m_state[e].R;
     const Mat3 RtFdot = R.transpose() * (edge_matrix(v, m_tets[e]) * m_dm_inv[e]);
     const Mat3 Edot = 0.5 * (RtFdot + RtFdot.transpose());
     const Mat3 Sdot = 2.0 * m_mu * Edot + (m_lambda * Edot.trace()) * Mat3::Identity();
-    scatter_h(m_tets[e], (-m_volume[e] * scale) * R * Sdot * m_dm_inv[e].transpose(), f);
-  }
+    return Mat3((-m_volume[e] * scale) * R * Sdot * m_dm_inv[e].transpose());
+  });
+}
+
+template <typename TetTerm>
+void CorotatedTets::for_each_tet(Vectors3& f, TetTerm&& term) const {
+  m_chunks.run(f, [&](const ChunkedScatter::Chunk& chunk, double* out) {
+    for (Index e = chunk.begin; e < chunk.end; ++e)
+      scatter_h(m_tets[static_cast<std::size_t>(e)], term(static_cast<std::size_t>(e)), out);
+  });
 }
 
 // For vertex a alone moving with v, Fdot = v g_a^T and, with u = R^T v (|u| = |v|),

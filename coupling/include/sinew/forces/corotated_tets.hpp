@@ -2,6 +2,7 @@
 #pragma once
 
 #include "sinew/force.hpp"
+#include "sinew/parallel.hpp"
 
 #include <array>
 #include <vector>
@@ -73,6 +74,11 @@ class CorotatedTets final : public Force, public ImplicitBlocks {
     Vec3 phat;   ///< diagonal first Piola-Kirchhoff stress in the SVD frame
   };
 
+  /// f += the tets' terms h_e = term(e) (vertex 0 gets -h_e's row sums, vertices 1-3 its columns),
+  /// by the fixed chunks of m_chunks.
+  template <typename TetTerm>
+  void for_each_tet(Vectors3& f, TetTerm&& term) const;
+
   std::vector<Tet> m_tets;
   CorotatedTetsSettings m_settings;
   Vectors3 m_rest_x;  ///< the rest positions it was built from (remove_elements_touching rebuilds from them)
@@ -84,6 +90,7 @@ class CorotatedTets final : public Force, public ImplicitBlocks {
   std::vector<Index> m_incidence_offsets;
   std::vector<Index> m_incidence;
   std::vector<TetState> m_state;
+  ChunkedScatter m_chunks;  ///< the element loops' fixed chunks (parallel::ChunkedScatter)
 };
 
 }  // namespace sinew
