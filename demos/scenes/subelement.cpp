@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <map>
 
 namespace sinew::scenes {
 namespace {
@@ -41,9 +42,9 @@ class SubElement final : public BulletScene {
     material.young_modulus = 3e4;
     material.poisson_ratio = 0.3;
     material.damping = 0.02;
-    for (int b = 0; b < 2; ++b) {
+    for (int b = 0; b < 3; ++b) {
       Ball& ball = m_balls[static_cast<std::size_t>(b)];
-      ball.x = (b == 0 ? -1.0 : 1.0) * 0.25;
+      ball.x = (b - 1) * 0.45;
       ball.surface = sphere_surface(2, kRadius, Vec3(ball.x, kRadius, 0));
       ball.volume = add_embedded_volume(system(), ball.surface.vertices, ball.surface.triangles, kSpacing, material);
       // Held up by the nodes below the surface, up to a cell below it: put it there from the start.
@@ -61,8 +62,13 @@ class SubElement final : public BulletScene {
       for (Index v = 0; v < ball.surface.vertices.cols(); ++v)
         ball.top = std::max(ball.top, ball.surface.vertices(1, v));
       if (b == 1) add_soft_surface(ball);
+      if (b == 2) start_adaptive(ball);
       if (ball.soft.empty()) ball.skin = embedded_skin(ball.volume, ball.surface.triangles);
-      add_surface(b == 0 ? "nodes only" : "soft-bound refined surface", ball.skin);
+      ball.drawn = static_cast<Index>(m_surface_triangles.size());
+      add_surface(b == 0   ? "nodes only"
+                  : b == 1 ? "soft-bound surface refined once"
+                           : "soft-bound surface refined as the probe comes",
+                  ball.skin);
       ball.probe = m_world.add_body(probe, 0.0, probe_pose(ball, 0.0), btVector3(0, 0, 0), kProbeGroup,
                                     btBroadphaseProxy::AllFilter);
       ball.probe->setCollisionFlags(ball.probe->getCollisionFlags() | btCollisionObject::CF_KINEMATIC_OBJECT);
@@ -82,6 +88,7 @@ class SubElement final : public BulletScene {
   }
 
   void advance(double frame_dt, int substeps) override {
+    refine_near_probe(m_balls[2]);
     BulletScene::advance(frame_dt, substeps);
     for (Ball& ball : m_balls) {
       ball.deepest = std::max(ball.deepest, depth(ball));
@@ -92,13 +99,18 @@ class SubElement final : public BulletScene {
   std::string json_fields() override {
     const Ball& nodes = m_balls[0];
     const Ball& soft = m_balls[1];
-    char text[512];
+    const Ball& adaptive = m_balls[2];
+    char text[768];
     std::snprintf(text, sizeof text,
                   "\"lattice_nodes\": %zu, \"tets\": %zu, \"coarse_triangles\": %zu, \"refined_triangles\": %zu, "
                   "\"soft_particles\": %zu, \"deepest_nodes_only\": %.4f, \"deepest_soft\": %.4f, "
-                  "\"soft_drift_max\": %.4f, \"soft_drift_now\": %.3g, ",
+                  "\"soft_drift_max\": %.4f, \"soft_drift_now\": %.3g, \"adaptive_refined_triangles\": %zu, "
+                  "\"adaptive_soft_particles\": %zu, \"adaptive_refinements\": %d, \"deepest_adaptive\": %.4f, "
+                  "\"adaptive_drift_max\": %.4f, \"adaptive_drift_now\": %.3g, ",
                   nodes.volume.lattice.size(), nodes.volume.embedding.tets.size(), nodes.surface.triangles.size(),
-                  soft.skin.size(), soft.soft.size(), nodes.deepest, soft.deepest, soft.most_drift, drift(soft));
+                  soft.skin.size(), soft.soft.size(), nodes.deepest, soft.deepest, soft.most_drift, drift(soft),
+                  adaptive.skin.size(), adaptive.soft.size(), adaptive.refinements, adaptive.deepest,
+                  adaptive.most_drift, drift(adaptive));
     return text;
   }
 
@@ -117,7 +129,119 @@ class SubElement final : public BulletScene {
     std::vector<std::array<Index, 3>> skin;
     btRigidBody* probe = nullptr;
     double deepest = -kInfinity, most_drift = 0.0;
+    Index drawn = -1;  // its surface among the scene's drawn ones
+    // The adaptive ball: its surface as refined so far, a soft particle per vertex (-1: none yet),
+    // the membrane among them, and how many rounds refined it.
+    RefinedTriangles mesh;
+    std::vector<Index> soft_of;
+    TriangleMembrane* membrane = nullptr;
+    int refinements = 0;
   };
+
+  // The third ball starts coarse: its surface's vertices are their own targets (the embedded ones),
+  // no soft particle yet; refine_near_probe adds them where the probe comes.
+  void start_adaptive(Ball& ball) {
+    ball.mesh = unrefined(ball.surface.vertices, ball.surface.triangles);
+    ball.target = ball.volume.surface;
+    ball.soft_of.assign(ball.target.size(), -1);
+    const std::uint32_t probe = static_cast<std::uint32_t>(kProbeGroup);
+    for (const Index i : ball.volume.lattice)
+      system().set_collision_filter(i, kDefaultCollisionGroup, kAllCollisionGroups & ~probe);
+  }
+
+  // Before each frame: the adaptive ball's triangles whose centre is within kFine of the probe's
+  // centre are split once, those within kFiner of it twice (red refinement, figure 4); new midpoints
+  // become targets bound to the ends of the edges they halve, every vertex of a split triangle gets a
+  // soft particle on a binding spring (at its target, or between the soft particles at the ends of
+  // the edge it halves), and the membrane among the soft particles is made again over the refined
+  // part, its rest shape the refined surface at rest. Refinement is kept once made.
+  void refine_near_probe(Ball& ball) {
+    const Vectors3& x = system().particles().x;
+    const Vec3 centre = to_eigen(ball.probe->getWorldTransform().getOrigin());
+    bool changed = false;
+    for (int level = 0; level < 2; ++level) {
+      const double reach = level == 0 ? kFine : kFiner;
+      std::vector<Index> chosen;
+      for (std::size_t t = 0; t < ball.mesh.triangles.size(); ++t) {
+        if (ball.mesh.level[t] != level) continue;
+        Vec3 c = Vec3::Zero();
+        for (const Index v : ball.mesh.triangles[t]) c += x.col(ball.target[static_cast<std::size_t>(v)]) / 3.0;
+        if ((c - centre).norm() < reach) chosen.push_back(static_cast<Index>(t));
+      }
+      if (chosen.empty()) continue;
+      const Index before = ball.mesh.vertices.cols();
+      ball.mesh = red_refine(ball.mesh, chosen);
+      for (const auto& [edge, middle] : ball.mesh.midpoint) {
+        if (middle < before) continue;
+        const Index a = ball.target[static_cast<std::size_t>(edge.first)],
+                    b = ball.target[static_cast<std::size_t>(edge.second)];
+        const Index m = system().add_particle(
+            0.5 * (x.col(a) + x.col(b)), 0.5 * (system().particles().v.col(a) + system().particles().v.col(b)), 0.0);
+        const Index parents[2] = {a, b};
+        const double weights[2] = {0.5, 0.5};
+        system().bind_linear(m, parents, weights);
+        ball.target.resize(std::max(ball.target.size(), static_cast<std::size_t>(middle) + 1), -1);
+        ball.target[static_cast<std::size_t>(middle)] = m;
+      }
+      ball.soft_of.resize(ball.target.size(), -1);
+      changed = true;
+      ++ball.refinements;
+    }
+    if (!changed) return;
+    const std::uint32_t probe = static_cast<std::uint32_t>(kProbeGroup);
+    std::map<Index, std::pair<Index, Index>> edge_of;
+    for (const auto& [edge, middle] : ball.mesh.midpoint) edge_of.emplace(middle, edge);
+    for (std::size_t t = 0; t < ball.mesh.triangles.size(); ++t) {
+      if (ball.mesh.level[t] == 0) continue;
+      for (const Index v : ball.mesh.triangles[t]) {
+        if (ball.soft_of[static_cast<std::size_t>(v)] >= 0) continue;
+        const Index target = ball.target[static_cast<std::size_t>(v)];
+        // A midpoint of an edge whose ends are soft already starts between them (the soft surface
+        // keeps its shape where it is split); any other vertex starts at its target.
+        Vec3 at = system().particles().x.col(target), velocity = system().particles().v.col(target);
+        if (const auto ends = edge_of.find(v); ends != edge_of.end()) {
+          const Index a = ball.soft_of[static_cast<std::size_t>(ends->second.first)],
+                      b = ball.soft_of[static_cast<std::size_t>(ends->second.second)];
+          if (a >= 0 && b >= 0) {
+            at = 0.5 * (system().particles().x.col(a) + system().particles().x.col(b));
+            velocity = 0.5 * (system().particles().v.col(a) + system().particles().v.col(b));
+          }
+        }
+        const Index s = system().add_particle(at, velocity, 0.0);
+        SoftBindingSettings binding;
+        binding.particle = s;
+        binding.target = target;
+        binding.stiffness = kSoftStiffness;
+        system().add_soft_binding(binding);
+        system().set_collision_filter(s, kDefaultCollisionGroup, probe);
+        ball.soft_of[static_cast<std::size_t>(v)] = s;
+        ball.soft.push_back(s);
+        ball.soft_target.push_back(target);
+      }
+    }
+    if (ball.membrane != nullptr) system().remove_force(*ball.membrane);
+    Vectors3 rest = system().particles().x;
+    std::vector<std::array<Index, 3>> membrane_triangles;
+    ball.skin.clear();
+    for (const auto& tri : ball.mesh.triangles) {
+      std::array<Index, 3> drawn{};
+      bool all_soft = true;
+      for (int k = 0; k < 3; ++k) {
+        const auto v = static_cast<std::size_t>(tri[static_cast<std::size_t>(k)]);
+        const Index s = ball.soft_of[v];
+        all_soft = all_soft && s >= 0;
+        drawn[static_cast<std::size_t>(k)] = s >= 0 ? s : ball.target[v];
+        if (s >= 0) rest.col(s) = ball.mesh.vertices.col(static_cast<Index>(v));
+      }
+      ball.skin.push_back(drawn);
+      if (all_soft) membrane_triangles.push_back(drawn);
+    }
+    TriangleMembraneSettings membrane;
+    membrane.mu = kSkinMu;
+    membrane.lambda = kSkinMu;
+    ball.membrane = &system().add_force(std::make_unique<TriangleMembrane>(membrane_triangles, rest, membrane));
+    m_surface_triangles[static_cast<std::size_t>(ball.drawn)] = ball.skin;
+  }
 
   const System& system_const() const { return m_coupling->system(); }
 
@@ -199,7 +323,7 @@ class SubElement final : public BulletScene {
     return w[0] * a + w[1] * b + w[2] * c;
   }
 
-  std::array<Ball, 2> m_balls;
+  std::array<Ball, 3> m_balls;
   bool m_settled = false;
 };
 
