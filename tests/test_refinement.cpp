@@ -166,30 +166,11 @@ RefinedTets two_tets() {
   return unrefined_tets(v, {{0, 1, 2, 3}, {1, 2, 3, 4}});
 }
 
-// A box of nx x ny x nz unit cubes, each split into six tets around its main diagonal (Kuhn), so
-// neighbouring cubes' faces match; positively oriented.
+// A box of nx x ny x nz cubes of edge h (Kuhn tets), unrefined.
 RefinedTets cube_block(int nx, int ny, int nz, double h) {
-  const auto id = [&](int i, int j, int k) { return Index((k * (ny + 1) + j) * (nx + 1) + i); };
-  Vectors3 v(3, (nx + 1) * (ny + 1) * (nz + 1));
-  for (int k = 0; k <= nz; ++k)
-    for (int j = 0; j <= ny; ++j)
-      for (int i = 0; i <= nx; ++i) v.col(id(i, j, k)) = h * Vec3(i, j, k);
+  Vectors3 v;
   std::vector<std::array<Index, 4>> tets;
-  const int orders[6][3] = {{0, 1, 2}, {0, 2, 1}, {1, 0, 2}, {1, 2, 0}, {2, 0, 1}, {2, 1, 0}};
-  for (int k = 0; k < nz; ++k)
-    for (int j = 0; j < ny; ++j)
-      for (int i = 0; i < nx; ++i)
-        for (const auto& order : orders) {
-          std::array<int, 3> at{i, j, k};
-          std::array<Index, 4> t{};
-          t[0] = id(at[0], at[1], at[2]);
-          for (int step = 0; step < 3; ++step) {
-            ++at[static_cast<std::size_t>(order[step])];
-            t[static_cast<std::size_t>(step + 1)] = id(at[0], at[1], at[2]);
-          }
-          if (volume_of(v, t) < 0.0) std::swap(t[2], t[3]);
-          tets.push_back(t);
-        }
+  scenes::kuhn_block(Vec3::Zero(), nx, ny, nz, h, v, tets);
   return unrefined_tets(v, tets);
 }
 

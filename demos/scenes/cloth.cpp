@@ -179,6 +179,34 @@ ClosedSurface capsule_surface(const Vec3& a, const Vec3& b, double radius, int a
   return capsule;
 }
 
+void kuhn_block(const Vec3& lo, int nx, int ny, int nz, double h, Vectors3& vertices,
+                std::vector<std::array<Index, 4>>& tets) {
+  const auto id = [&](int i, int j, int k) { return Index((k * (ny + 1) + j) * (nx + 1) + i); };
+  vertices.resize(3, (nx + 1) * (ny + 1) * (nz + 1));
+  for (int k = 0; k <= nz; ++k)
+    for (int j = 0; j <= ny; ++j)
+      for (int i = 0; i <= nx; ++i) vertices.col(id(i, j, k)) = lo + h * Vec3(i, j, k);
+  const int orders[6][3] = {{0, 1, 2}, {0, 2, 1}, {1, 0, 2}, {1, 2, 0}, {2, 0, 1}, {2, 1, 0}};
+  tets.clear();
+  for (int k = 0; k < nz; ++k)
+    for (int j = 0; j < ny; ++j)
+      for (int i = 0; i < nx; ++i)
+        for (const auto& order : orders) {
+          std::array<int, 3> at{i, j, k};
+          std::array<Index, 4> t{};
+          t[0] = id(at[0], at[1], at[2]);
+          for (int step = 0; step < 3; ++step) {
+            ++at[static_cast<std::size_t>(order[step])];
+            t[static_cast<std::size_t>(step + 1)] = id(at[0], at[1], at[2]);
+          }
+          Mat3 e;
+          e << vertices.col(t[1]) - vertices.col(t[0]), vertices.col(t[2]) - vertices.col(t[0]),
+              vertices.col(t[3]) - vertices.col(t[0]);
+          if (e.determinant() < 0.0) std::swap(t[2], t[3]);
+          tets.push_back(t);
+        }
+}
+
 std::vector<std::array<Index, 3>> grid_triangles(int nx, int ny) {
   std::vector<std::array<Index, 3>> triangles;
   for (int j = 0; j + 1 < ny; ++j)

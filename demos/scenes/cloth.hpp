@@ -65,6 +65,12 @@ std::vector<std::array<Index, 3>> embedded_skin(const EmbeddedVolume& volume,
 /// (its pole one vertex); outward-facing, vertices shared (a closed surface).
 ClosedSurface capsule_surface(const Vec3& a, const Vec3& b, double radius, int around, int along, int cap);
 
+/// A box of nx x ny x nz cubes of edge h from `lo`, each split into six tets around its main diagonal
+/// (Kuhn), so that neighbouring cubes' faces match; positively oriented. Vertex (i, j, k) is column
+/// (k (ny + 1) + j) (nx + 1) + i.
+void kuhn_block(const Vec3& lo, int nx, int ny, int nz, double h, Vectors3& vertices,
+                std::vector<std::array<Index, 4>>& tets);
+
 /// The triangles of an nx x ny grid of vertices numbered j * nx + i, each cell split along its
 /// diagonal from (i, j) to (i + 1, j + 1).
 std::vector<std::array<Index, 3>> grid_triangles(int nx, int ny);
