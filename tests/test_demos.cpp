@@ -407,7 +407,7 @@ TEST(PinchDemo, PinchedNodesHoldStillBetweenTheirDuplicates) {
   auto naive = make_bullet_scene("pinch/naive");
   const double naive_rms = mean_hold_rms(*naive, off_plane);
   EXPECT_GT(naive_rms, 1.0);
-  EXPECT_GT(off_plane, 0.015);
+  EXPECT_GT(off_plane, 2e-3);  // thrown further off the plane than the pinch's bound above
   EXPECT_TRUE(naive->coupling().pinches().empty());
 }
 

@@ -23,6 +23,12 @@ void Constraints::reset(const Unknowns& unknowns) {
 // Union-find over the particles of the constraints; a root with one constraint is a single, the others
 // become groups. The particle arrays are reset to -1 / 0 afterwards for the next step (no allocation
 // while every constraint is alone).
+namespace {
+// Below this fraction of a collision group's largest singular value, a direction of its rows is held
+// at zero velocity rather than driven to its target (prepare_collisions).
+constexpr double kWeakRow = 1e-2;
+}  // namespace
+
 void Constraints::prepare_collisions() {
   m_single.clear();
   m_collision_groups.clear();
@@ -84,8 +90,18 @@ void Constraints::prepare_collisions() {
       Index rank = 0;
       while (rank < sigma.size() && sigma[rank] > 1e-10 * sigma[0]) ++rank;
       group.basis = svd.matrixV().leftCols(rank);
-      const VectorXd coefficients = (svd.matrixU().leftCols(rank).transpose() * t).cwiseQuotient(sigma.head(rank));
+      // Nearly dependent rows (a node's own contact and an edge contact that holds it with most of
+      // its weight, their normals alike) would meet slightly different targets only by velocities of
+      // (their difference) / sigma, hundreds of metres a second: a direction the rows hold less than
+      // a hundredth as firmly as their strongest is held still instead (it stays in the basis, so the
+      // projection keeps it at zero) and carries no multiplier.
+      VectorXd inverse = VectorXd::Zero(rank);
+      for (Index i = 0; i < rank; ++i)
+        if (sigma[i] >= kWeakRow * sigma[0]) inverse[i] = 1.0 / sigma[i];
+      const VectorXd coefficients = (svd.matrixU().leftCols(rank).transpose() * t).cwiseProduct(inverse);
       group.particular = group.basis * coefficients;
+      group.rows = rows[g];
+      group.multipliers = svd.matrixU().leftCols(rank) * inverse.asDiagonal();
       largest = std::max(largest, 3 * k);
       largest_rank = std::max(largest_rank, rank);
     }
@@ -112,6 +128,28 @@ void Constraints::project_collision_groups(GeneralizedVector& u, bool impose_tar
     u_g.noalias() -= g.basis * coefficients;
     if (impose_targets) u_g += g.particular;
     for (Index j = 0; j < k; ++j) u.particles.col(g.particles[static_cast<std::size_t>(j)]) = u_g.segment<3>(3 * j);
+  }
+}
+
+void Constraints::collision_multipliers(const GeneralizedVector& r, VectorXd& lambda) const {
+  lambda.setZero(static_cast<Index>(m_collisions.size()));
+  for (std::size_t k : m_single) {
+    const CollisionConstraint& c = m_collisions[k];
+    double jr = 0.0, jj = 0.0;
+    for (int a = 0; a < c.size; ++a) {
+      const double w = c.weights[static_cast<std::size_t>(a)];
+      jr += w * c.normal.dot(r.particles.col(c.particles[static_cast<std::size_t>(a)]));
+      jj += w * w;
+    }
+    if (jj > 0.0) lambda[static_cast<Index>(k)] = jr / jj;
+  }
+  // J = U Sigma V^T on the group's rank: J^T lambda = r gives lambda = U Sigma^-1 V^T r.
+  for (const CollisionGroup& g : m_collision_groups) {
+    const Index k = static_cast<Index>(g.particles.size());
+    VectorXd r_g(3 * k);
+    for (Index j = 0; j < k; ++j) r_g.segment<3>(3 * j) = r.particles.col(g.particles[static_cast<std::size_t>(j)]);
+    const VectorXd l = g.multipliers * (g.basis.transpose() * r_g);
+    for (std::size_t i = 0; i < g.rows.size(); ++i) lambda[static_cast<Index>(g.rows[i])] = l[static_cast<Index>(i)];
   }
 }
 

@@ -36,6 +36,10 @@ class Constraints {
   /// solve that held the rows, r is the reaction the rows exert, J^T lambda.
   void joint_multipliers(const GeneralizedVector& r, std::size_t rows, VectorXd& lambda) const;
 
+  /// The multiplier of each collision constraint (in collisions()' order) from r = S u - c after a
+  /// solve that held them: J^T lambda = r on each constraint or group, least norm. lambda > 0 pushes
+  /// along the constraint's normal; it is the impulse over the solve's step.
+  void collision_multipliers(const GeneralizedVector& r, VectorXd& lambda) const;
   /// Zeroes rows without unknowns, then project_constraints.
   void project(GeneralizedVector& u) const;
   /// project() without the particle mask: for vectors already zero on rows without unknowns.
@@ -60,9 +64,11 @@ class Constraints {
   // its targets (as the joint groups below).
   std::vector<std::size_t> m_single;
   struct CollisionGroup {
-    std::vector<Index> particles;  // ascending
-    Eigen::MatrixXd basis;         // 3k x rank
-    VectorXd particular;           // 3k
+    std::vector<Index> particles;   // ascending
+    Eigen::MatrixXd basis;          // 3k x rank
+    VectorXd particular;            // 3k
+    std::vector<std::size_t> rows;  // its constraints (indices into m_collisions)
+    Eigen::MatrixXd multipliers;    // m x rank: U Sigma^-1, so lambda = multipliers * basis^T r
   };
   std::vector<CollisionGroup> m_collision_groups;
   std::vector<Index> m_collision_root;  // per particle: union-find parent, -1 when in no constraint

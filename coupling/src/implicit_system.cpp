@@ -10,7 +10,7 @@ void ImplicitSystem::reset() {
   m_h_mask_h = -1.0;
 }
 
-void ImplicitSystem::apply(const GeneralizedVector& u, GeneralizedVector& out) {
+void ImplicitSystem::product(const GeneralizedVector& u, GeneralizedVector& out, bool project) {
   const StepModel& s = *m_model;
   const Index n = m_unknowns.n;
   const double h = m_k.h;
@@ -53,7 +53,7 @@ void ImplicitSystem::apply(const GeneralizedVector& u, GeneralizedVector& out) {
     out.rigid.col(b).head<3>() = s.bodies.mass[b] * u.rigid.col(b).head<3>() - h * m_apply_wrench.col(b).head<3>();
     out.rigid.col(b).tail<3>() = body_I[b] * u.rigid.col(b).tail<3>() - h * m_apply_wrench.col(b).tail<3>();
   }
-  m_constraints.project_constraints(out);
+  if (project) m_constraints.project_constraints(out);
 }
 
 void ImplicitSystem::implicit_forces(const GeneralizedVector& u, const Vectors3& offset, Vectors3& f) {

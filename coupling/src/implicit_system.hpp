@@ -27,7 +27,9 @@ class ImplicitSystem final : public LinearOperator {
     m_body_I = &body_I;
   }
 
-  void apply(const GeneralizedVector& u, GeneralizedVector& out) override;
+  void apply(const GeneralizedVector& u, GeneralizedVector& out) override { product(u, out, true); }
+  /// S u with the constrained components kept: S u - c is then the constraints' reaction.
+  void apply_unprojected(const GeneralizedVector& u, GeneralizedVector& out) { product(u, out, false); }
   /// out = -h W^T (D + beta K + beta_el K+) o: the implicit forces' impulse from the velocities `offset`
   /// on the bound rows alone (zero on every other row and twist). The step's points on rigid frames
   /// move with W u + o (Newmark::set_step_maps), so S u = c + out.
@@ -46,6 +48,7 @@ class ImplicitSystem final : public LinearOperator {
   void impose(GeneralizedVector& u) const override { m_constraints.impose_joints(u); }
 
  private:
+  void product(const GeneralizedVector& u, GeneralizedVector& out, bool project);
   const Unknowns& m_unknowns;
   Constraints& m_constraints;
   Preconditioner& m_preconditioner;

@@ -759,6 +759,7 @@ void Newmark::backward_euler_velocity(const StepModel& s, double dt, StepStats& 
   const SolveResult result = solve(s, k, needs_linear_solve(s), false);
   stats.ms.cg += ms_since(t);
   record_solve(result, stats.cg_iterations_step4, stats);
+  apply_surface_friction();
   m_v_half = m_y.particles;
   m_last_half.particles = m_y.particles;
   m_last_half.rigid = m_y.rigid;
@@ -768,6 +769,52 @@ void Newmark::backward_euler_velocity(const StepModel& s, double dt, StepStats& 
   p.x = m_x_np1;
   bodies.x = m_body_x_np1;
   for (Index b = 0; b < u.r; ++b) bodies.q[b] = m_body_q_np1[b];
+}
+
+// Coulomb friction at the step-4 collision constraints. A particle resting on a prescribed surface
+// has no approach for step 3 to stop (v^n is already tangent), so its friction must come from the
+// load the step-4 projection carries: the constraint's multiplier lambda (J^T lambda = S v^{n+1/2} - c,
+// the surface's impulse over the half step). Each constraint with a coefficient mu then changes its
+// stencil's tangential velocity relative to the surface by at most mu lambda / m_eff over the half
+// step, spread over the stencil as an impulse would be (w_a / m_a / S, S = sum w_a^2 / m_a), in the
+// direction that slows the slip at the step's end, v^{n+1} = 2 v^{n+1/2} - v~^n, and never past zero
+// there: so over the whole step the change is mu times the full step's normal impulse, 2 lambda, and
+// a contact that sticks ends the step without slip (clamping v^{n+1/2} instead would leave
+// v^{n+1} = -v~^n, a slip that flips sign every step). The changes are tangential, so each
+// constraint's own row still holds; constraints sharing particles are imposed again afterwards.
+void Newmark::apply_surface_friction() {
+  const std::vector<CollisionConstraint>& constraints = m_constraints.collisions();
+  bool any = false;
+  for (const CollisionConstraint& c : constraints) any = any || c.friction > 0.0;
+  if (!any) return;
+  const Unknowns& u = m_unknowns;
+  m_system.apply_unprojected(m_y, m_product);
+  m_product.particles -= m_c.particles;
+  m_constraints.collision_multipliers(m_product, m_collision_lambda);
+  for (std::size_t k = 0; k < constraints.size(); ++k) {
+    const CollisionConstraint& c = constraints[k];
+    const double lambda = m_collision_lambda[static_cast<Index>(k)];
+    if (!(c.friction > 0.0) || !(lambda > 0.0)) continue;
+    Vec3 end = Vec3::Zero();
+    double S = 0.0;
+    for (int a = 0; a < c.size; ++a) {
+      const Index i = c.particles[static_cast<std::size_t>(a)];
+      const double w = c.weights[static_cast<std::size_t>(a)];
+      end += w * (2.0 * Vec3(m_y.particles.col(i)) - Vec3(m_v_tilde_n.col(i)));
+      S = u.dof_mass[i] > 0.0 && std::isfinite(S) ? S + w * w / u.dof_mass[i] : kInfinity;
+    }
+    end -= c.velocity;
+    const Vec3 slip = end - c.normal.dot(end) * c.normal;
+    const double slip_speed = slip.norm();
+    if (!(slip_speed > 0.0) || !(S > 0.0 && std::isfinite(S))) continue;  // massless rows take no impulse
+    // The half step's change of the stencil's velocity: half the end's, at most mu lambda S.
+    const Vec3 change = -std::min(0.5 * slip_speed, c.friction * lambda * S) / slip_speed * slip;
+    for (int a = 0; a < c.size; ++a) {
+      const Index i = c.particles[static_cast<std::size_t>(a)];
+      m_y.particles.col(i) += (c.weights[static_cast<std::size_t>(a)] / u.dof_mass[i] / S) * change;
+    }
+  }
+  m_constraints.impose_collisions(m_y);
 }
 
 // Step 5: v^{n+1} = 2 v^{n+1/2} - v~^n. Rigid bodies extrapolate momentum, L^{n+1} = 2 L^{n+1/2} - L^n,
@@ -1282,6 +1329,9 @@ void Newmark::check_constraint(const StepModel& s, const CollisionConstraint& c,
   if (!(c.normal.allFinite() && std::abs(c.normal.norm() - 1.0) < 1e-6 && std::isfinite(c.normal_velocity)))
     fail("collision source '", source, "': a constraint's normal (", c.normal.transpose(),
          ") is not a unit vector or its velocity ", c.normal_velocity, " is not finite");
+  if (!(std::isfinite(c.friction) && c.friction >= 0.0 && c.velocity.allFinite()))
+    fail("collision source '", source, "': a constraint's friction ", c.friction, " or surface velocity (",
+         c.velocity.transpose(), ") is not finite and non-negative");
   for (int a = 0; a < c.size; ++a) {
     const Index i = c.particles[static_cast<std::size_t>(a)];
     if (i < 0 || i >= m_unknowns.n || !is_dynamic(s.particles.kind[i]))

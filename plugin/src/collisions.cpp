@@ -473,6 +473,7 @@ void BulletCollisions::process(CollisionContext& c) {
       }
     }
     x.col(i) += (thickness - phi) * normal;
+    if (prescribed) hold_by_friction(c, i, static_cast<std::size_t>(hit), normal, thickness - phi);
     const Vec3 v_old = v.col(i);
     v.col(i) = stop_approach(v_old, v_body, normal, m_settings.friction);
     if (prescribed) {
@@ -480,12 +481,14 @@ void BulletCollisions::process(CollisionContext& c) {
       // a body of infinite mass, so no momentum is lost); a synchronized particle, through its
       // target's stencil.
       if (is_dynamic(kind)) {
-        c.add_constraint(CollisionConstraint::point(i, normal, normal.dot(v_body)));
+        c.add_constraint(CollisionConstraint::point(i, normal, v_body, m_settings.friction));
       } else if (synchronized) {
         CollisionConstraint held;
         if (c.target_stencil(i, held)) {
           held.normal = normal;
           held.normal_velocity = normal.dot(v_body);
+          held.velocity = v_body;
+          held.friction = m_settings.friction;
           c.add_constraint(held);
         }
       }
@@ -504,6 +507,26 @@ void BulletCollisions::process(CollisionContext& c) {
     if (synchronized) c.push_drift(i);
   }
   if (m_settings.features) process_features(c);
+}
+
+// Coulomb friction on the step's displacement of a particle pushed out of a prescribed surface by
+// `push` along n. Step 1 moved it without contacts, x~^{n+1} = x^n + dt v~^{n+1/2}, so a particle
+// resting on a slope slid by dt^2/2 g_t and sank by dt^2/2 g_n; step 4's friction (on the velocities,
+// Newmark::apply_surface_friction) cannot take that back. The push is the normal displacement the
+// contact imposed, so its tangential counterpart is at most mu push: the particle's displacement
+// relative to the surface point it touches (where that point was at t^n, p_n, against x^n) loses its
+// tangential part up to mu push, never past zero. A particle that sticks then stays where it was on
+// the surface, and one that slides moves the distance Coulomb's deceleration leaves,
+// dt v - dt^2/2 mu g_n.
+void BulletCollisions::hold_by_friction(CollisionContext& c, Index i, std::size_t o, const Vec3& n, double push) {
+  if (!(m_settings.friction > 0.0) || !(push > 0.0)) return;
+  auto x = c.x->col(i);
+  const Vec3 was =
+      m_frame_n[o] == m_frame[o] ? Vec3(x) : to_eigen(m_frame_n[o] * (m_frame[o].inverse() * to_bullet(x)));
+  const Vec3 relative = was - c.x_n->col(i);  // (x - x^n) - (x - p_n)
+  const Vec3 slip = relative - n.dot(relative) * n;
+  const double length = slip.norm();
+  if (length > 0.0) x -= std::min(1.0, m_settings.friction * push / length) * slip;
 }
 
 // ---- corners and edges of polyhedral bodies against the surfaces' faces and edges --------------
@@ -619,6 +642,8 @@ void BulletCollisions::respond_to_body(CollisionContext& c, int o, const std::ar
     if (constraint.size > 0) {
       constraint.normal = n;
       constraint.normal_velocity = n.dot(v_body);
+      constraint.velocity = v_body;
+      constraint.friction = m_settings.friction;
       c.add_constraint(constraint);
     }
     return;

@@ -38,6 +38,12 @@ struct CollisionConstraint {
   int size = 1;
   Vec3 normal = Vec3::UnitY();
   double normal_velocity = 0.0;  ///< [m/s]
+  /// Coulomb friction on the stencil's tangential velocity sum_i w_i v_i, relative to the tangential
+  /// part of `velocity` (the surface's velocity at the contact), bounded by `friction` times the
+  /// normal impulse the solve's projection exerts: after the step-4 solve, as a contact between a
+  /// body and a prescribed surface sees it. 0: frictionless.
+  double friction = 0.0;
+  Vec3 velocity = Vec3::Zero();  ///< [m/s] the surface's velocity (only its tangential part is used)
 
   /// One particle against a surface moving at normal_velocity along the unit normal n.
   static CollisionConstraint point(Index particle, const Vec3& n, double normal_velocity) {
@@ -45,6 +51,13 @@ struct CollisionConstraint {
     c.particles[0] = particle;
     c.normal = n;
     c.normal_velocity = normal_velocity;
+    return c;
+  }
+  /// One particle against a surface moving at `surface_velocity`, with Coulomb coefficient mu.
+  static CollisionConstraint point(Index particle, const Vec3& n, const Vec3& surface_velocity, double mu) {
+    CollisionConstraint c = point(particle, n, n.dot(surface_velocity));
+    c.velocity = surface_velocity;
+    c.friction = mu;
     return c;
   }
 };
