@@ -184,7 +184,9 @@ TEST(RedRefinementOfTets, ASplitTetHasEightChildrenOfAnEighthAndHangingNodesOnIt
   for (std::size_t t = 0; t < once.tets.size(); ++t) {
     const double v = volume_of(once.vertices, once.tets[t]);
     EXPECT_GT(v, 0.0);
-    if (once.level[t] == 1) EXPECT_NEAR(v, parent / 8.0, 1e-15);
+    if (once.level[t] == 1) {
+      EXPECT_NEAR(v, parent / 8.0, 1e-15);
+    }
     sum += v;
   }
   EXPECT_NEAR(sum, parent + volume_of(mesh.vertices, mesh.tets[1]), 1e-15);

@@ -54,7 +54,7 @@ class Newmark {
   /// Step 1's initial guesses: v^n in m_y and, when one is to be tried, the other in m_guess (see
   /// the comment in the .cpp). Returns the alternative to pass to the solve, or null.
   GeneralizedVector* choose_step1_guess(const StepModel& s, double dt, bool& trial);
-  void apply_surface_friction();                            // step 4's collision constraints' Coulomb friction
+  void apply_surface_friction();                        // step 4's collision constraints' Coulomb friction
   void keep_half_velocity(const StepModel& s);          // step 1's answer in m_y -> m_v_half, m_twist_half, v, w
   void move_positions(const StepModel& s, double tau);  // x^n + tau v~^{n+1/2}, frames likewise (velocities kept)
   // The rigid frames over the step: their turns and the points' chords (see set_step_maps).

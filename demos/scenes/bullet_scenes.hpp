@@ -23,6 +23,14 @@ inline btTransform at(const btVector3& origin, const btQuaternion& rotation = bt
   return btTransform(rotation, origin);
 }
 
+/// The coupling's defaults with CouplingSettings::self_collisions on (contact between the
+/// deformables' surfaces).
+inline bullet::CouplingSettings with_self_collisions() {
+  bullet::CouplingSettings s;
+  s.self_collisions = true;
+  return s;
+}
+
 /// The registry entry of a Bullet scene class with a default constructor: `info` gives its name,
 /// description and gallery frame; its kind and factory follow from the class.
 template <class SceneType>

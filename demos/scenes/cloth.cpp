@@ -252,7 +252,7 @@ RefinedTriangles refine_near(RefinedTriangles mesh, std::span<const double> reac
 }
 
 SoftCopy add_soft_copy(System& system, const RefinedTriangles& mesh, const std::vector<Index>& targets,
-                       double stiffness, std::uint32_t mask, double membrane_mu) {
+                       double stiffness, std::uint32_t mask, double membrane_mu, double mass) {
   SoftCopy copy;
   std::vector<char> refined(static_cast<std::size_t>(mesh.vertices.cols()), 0);
   for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
@@ -267,6 +267,7 @@ SoftCopy add_soft_copy(System& system, const RefinedTriangles& mesh, const std::
     binding.target = targets[static_cast<std::size_t>(v)];
     binding.coupling = SoftCoupling::spring;
     binding.stiffness = stiffness;
+    binding.mass = mass;
     system.add_soft_binding(binding);
     system.set_collision_filter(s, kDefaultCollisionGroup, mask);
     copy.soft.push_back(s);
@@ -284,6 +285,7 @@ SoftCopy add_soft_copy(System& system, const RefinedTriangles& mesh, const std::
       skin_of_soft.push_back(drawn);
   }
   // Section 3.1: soft-bound particles may carry forces of their own.
+  if (!(membrane_mu > 0.0)) return copy;
   TriangleMembraneSettings membrane;
   membrane.mu = membrane_mu;
   membrane.lambda = membrane_mu;

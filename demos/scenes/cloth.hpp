@@ -88,14 +88,16 @@ RefinedTriangles refine_near(RefinedTriangles mesh, std::span<const double> reac
 /// A soft-bound copy of a refined surface (figure 7): a particle at each vertex of a refined triangle
 /// (level > 0), tied to that vertex's target by a binding spring of `stiffness` (it inherits the
 /// target's elastic accelerations), colliding only with the groups in `mask`, and a membrane
-/// (mu = lambda = membrane_mu) among them so that a small body dents the copy instead of parting it.
+/// (mu = lambda = membrane_mu; none for 0) among them so that a small body dents the copy instead of
+/// parting it.
 struct SoftCopy {
   std::vector<Index> soft, soft_target;    ///< the soft particles and their targets
   std::vector<Index> drawn;                ///< per vertex: its soft particle, or its target
   std::vector<std::array<Index, 3>> skin;  ///< every triangle of the mesh, drawn from `drawn`
-  TriangleMembrane* membrane = nullptr;
+  TriangleMembrane* membrane = nullptr;    ///< null when membrane_mu is 0
 };
+/// `mass` is each soft particle's own mass; 0 gives it its target's effective mass (SoftBindingSettings).
 SoftCopy add_soft_copy(System& system, const RefinedTriangles& mesh, const std::vector<Index>& targets,
-                       double stiffness, std::uint32_t mask, double membrane_mu);
+                       double stiffness, std::uint32_t mask, double membrane_mu, double mass = 0.0);
 
 }  // namespace sinew::scenes

@@ -7,12 +7,6 @@
 namespace sinew::scenes {
 namespace {
 
-bullet::CouplingSettings with_self_collisions() {
-  bullet::CouplingSettings s;
-  s.self_collisions = true;
-  return s;
-}
-
 // A square cloth falls onto a Bullet body turning on a table, folds onto itself and slides off: a
 // kinematic box (0.3 m, turning at a quarter turn a second about the vertical) on a static table, the
 // 30 x 30 cloth of 0.8 m dropped from 0.3 m above it, with CouplingSettings::self_collisions.
