@@ -10,14 +10,7 @@
 // The signed SVD makes Psi a function of F that keeps growing through inversion, so an inverted
 // tet is pushed back through its smallest stretch instead of settling as a reflected copy.
 //
-// Differential, dFhat = U^T dF V, dP = U dPhat V^T:
-//   dPhat_ii = sum_j (2 mu delta_ij + lambda) dFhat_jj
-//   [dPhat_ij]   [A B] [dFhat_ij]      A + B = (Phat_i - Phat_j) / (sigma_i - sigma_j) = 2 mu
-//   [dPhat_ji] = [B A] [dFhat_ji],     A - B = (Phat_i + Phat_j) / (sigma_i + sigma_j)
-// A + B is exactly 2 mu for this model, so the sigma_i = sigma_j case needs no limit. A - B is
-// genuinely unbounded as sigma_i + sigma_j -> 0 (two signed stretches cancelling: the rotation
-// U V^T is not differentiable there), so |sigma_i + sigma_j| is clamped to >= 1e-6 keeping its
-// sign; the differential is exact everywhere else and stays finite there.
+// Differential, dFhat = U^T dF V, dP = U dPhat V^T (corotated_stress.hpp).
 //
 // Damping is stiffness-proportional in strain-rate form with the rotation frozen at R = U V^T:
 //   D(v) = V_e beta (mu |Edot|^2 + lambda/2 tr(Edot)^2),  Edot = sym(R^T Fdot),  Fdot = Vs Dm^-1,
@@ -26,6 +19,7 @@
 // semi-definite; rigid motion (R^T Fdot skew) is not damped. At rest it is exactly -beta K.
 #include "sinew/forces/corotated_tets.hpp"
 
+#include "corotated_stress.hpp"
 #include "element_support.hpp"
 #include "signed_svd.hpp"
 
@@ -41,8 +35,6 @@ namespace {
 constexpr std::string_view kName = "corotated tets";
 // A tet whose volume is at round-off level of its longest edge cubed has no usable Dm^-1.
 constexpr double kDegenerateRelative = 1.0e-12;
-// Floor on |sigma_i + sigma_j| in the differential (see the comment at the top).
-constexpr double kSigmaSumFloor = 1.0e-6;
 
 Mat3 edge_matrix(const Vectors3& x, const std::array<Index, 4>& v) {
   Mat3 ds;
@@ -72,10 +64,6 @@ bool same_bits(const Mat3& F, const Mat3& G) { return std::memcmp(F.data(), G.da
 Mat3 first_piola(const Mat3& U, const Vec3& phat, const Mat3& V) {
   Mat3 P = U * phat.asDiagonal() * V.transpose();
   return P;
-}
-
-Vec3 diagonal_stress(const Vec3& sigma, double mu, double lambda) {
-  return 2.0 * mu * (sigma.array() - 1.0).matrix() + Vec3::Constant(lambda * (sigma.sum() - 3.0));
 }
 
 }  // namespace
@@ -162,7 +150,7 @@ void CorotatedTets::update_position_state(const Vectors3& x) {
       s.V = svd.V;
       s.R = svd.U * svd.V.transpose();
       s.sigma = svd.sigma;
-      s.phat = diagonal_stress(svd.sigma, m_mu, m_lambda);
+      s.phat = detail::corotated_diagonal_stress(svd.sigma, m_mu, m_lambda);
     }
   });
 }
@@ -172,8 +160,7 @@ double CorotatedTets::potential_energy(const Vectors3& x) const {
   for (std::size_t e = 0; e < m_tets.size(); ++e) {
     const Mat3 F = edge_matrix(x, m_tets[e]) * m_dm_inv[e];
     const Vec3 sigma = same_bits(F, m_state[e].F) ? m_state[e].sigma : detail::signed_svd(F).sigma;
-    const double volumetric = sigma.sum() - 3.0;
-    energy += m_volume[e] * (m_mu * (sigma.array() - 1.0).square().sum() + 0.5 * m_lambda * volumetric * volumetric);
+    energy += m_volume[e] * detail::corotated_energy_density(sigma, m_mu, m_lambda);
   }
   return energy;
 }
@@ -184,31 +171,17 @@ void CorotatedTets::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
     const TetState& s = m_state[e];
     const Mat3 P = same_bits(F, s.F) ? first_piola(s.U, s.phat, s.V) : [&] {
       const detail::SignedSvd svd = detail::signed_svd(F);
-      return first_piola(svd.U, diagonal_stress(svd.sigma, m_mu, m_lambda), svd.V);
+      return first_piola(svd.U, detail::corotated_diagonal_stress(svd.sigma, m_mu, m_lambda), svd.V);
     }();
     return Mat3((-m_volume[e]) * P * m_dm_inv[e].transpose());
   });
 }
 
 void CorotatedTets::add_elastic_differentials(const Vectors3& dx, Vectors3& df) const {
-  constexpr int kPairs[3][2] = {{0, 1}, {0, 2}, {1, 2}};
   for_each_tet(df, [&](std::size_t e) {
     const TetState& s = m_state[e];
     const Mat3 dF_hat = s.U.transpose() * (edge_matrix(dx, m_tets[e]) * m_dm_inv[e]) * s.V;
-    Mat3 dP_hat;
-    const double trace = m_lambda * dF_hat.trace();
-    for (int i = 0; i < 3; ++i) dP_hat(i, i) = 2.0 * m_mu * dF_hat(i, i) + trace;
-    for (const auto& pair : kPairs) {
-      const int i = pair[0];
-      const int j = pair[1];
-      double sum = s.sigma(i) + s.sigma(j);
-      if (std::abs(sum) < kSigmaSumFloor) sum = sum < 0.0 ? -kSigmaSumFloor : kSigmaSumFloor;
-      const double half_a_minus_b = 0.5 * (s.phat(i) + s.phat(j)) / sum;
-      const double a = m_mu + half_a_minus_b;  // (A + B) / 2 = mu
-      const double b = m_mu - half_a_minus_b;
-      dP_hat(i, j) = a * dF_hat(i, j) + b * dF_hat(j, i);
-      dP_hat(j, i) = b * dF_hat(i, j) + a * dF_hat(j, i);
-    }
+    const Mat3 dP_hat = detail::corotated_stress_differential(dF_hat, s.sigma, s.phat, m_mu, m_lambda);
     const Mat3 dP = s.U * dP_hat * s.V.transpose();
     return Mat3((-m_volume[e]) * dP * m_dm_inv[e].transpose());
   });

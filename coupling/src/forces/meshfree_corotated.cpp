@@ -1,0 +1,315 @@
+// Corotated meshfree elasticity: see the header for the model, the correction and the forces.
+#include "sinew/forces/meshfree_corotated.hpp"
+
+#include "corotated_stress.hpp"
+#include "element_support.hpp"
+#include "signed_svd.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <numeric>
+#include <utility>
+
+namespace sinew {
+
+namespace {
+
+constexpr std::string_view kName = "meshfree corotated";
+// M_i's smallest singular value below this fraction of its largest: the neighbours do not span space.
+constexpr double kSingularMoment = 1.0e-8;
+
+// Lucy's quartic, normalised in 3D: W(r) = 105 / (16 pi h^3) (1 + 3q)(1 - q)^3, and dW/dr.
+double kernel(double r, double h) {
+  const double q = r / h;
+  if (q >= 1.0) return 0.0;
+  return 105.0 / (16.0 * std::numbers::pi * h * h * h) * (1.0 + 3.0 * q) * std::pow(1.0 - q, 3);
+}
+double kernel_slope(double r, double h) {
+  const double q = r / h;
+  if (q >= 1.0) return 0.0;
+  // d/dq [(1 + 3q)(1 - q)^3] = 3(1 - q)^3 - 3(1 + 3q)(1 - q)^2 = -12 q (1 - q)^2
+  return 105.0 / (16.0 * std::numbers::pi * h * h * h) * (-12.0 * q * (1.0 - q) * (1.0 - q)) / h;
+}
+
+using detail::corotated_diagonal_stress;
+
+}  // namespace
+
+MeshfreeCorotated::MeshfreeCorotated(std::vector<Index> particles, const Vectors3& rest_x, std::vector<double> volumes,
+                                     const MeshfreeCorotatedSettings& settings)
+    : m_particles(std::move(particles)), m_volume(std::move(volumes)), m_settings(settings) {
+  const double h = m_settings.support_radius;
+  if (!(std::isfinite(h) && h > 0.0)) fail(kName, ": support_radius ", h, " must be positive and finite");
+  detail::check_non_negative(kName, "young_modulus", m_settings.young_modulus);
+  if (m_settings.young_modulus == 0.0) fail(kName, ": young_modulus is 0, expected > 0");
+  const double nu = m_settings.poisson_ratio;
+  if (!(nu > -1.0 && nu < 0.5)) fail(kName, ": poisson_ratio ", nu, " is outside (-1, 0.5)");
+  detail::check_non_negative(kName, "beta", m_settings.beta);
+  detail::check_non_negative(kName, "hourglass", m_settings.hourglass);
+  m_mu = m_settings.young_modulus / (2.0 * (1.0 + nu));
+  m_lambda = m_settings.young_modulus * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
+
+  const std::size_t count = m_particles.size();
+  if (count == 0) fail(kName, ": no particles");
+  if (m_volume.size() != count) fail(kName, ": ", m_volume.size(), " volumes for ", count, " particles");
+  std::vector<Index> sorted = m_particles;
+  std::sort(sorted.begin(), sorted.end());
+  for (std::size_t k = 0; k < count; ++k) {
+    if (sorted[k] < 0 || sorted[k] >= rest_x.cols())
+      fail(kName, ": particle ", sorted[k], " is outside the ", rest_x.cols(), " rest positions");
+    if (k > 0 && sorted[k] == sorted[k - 1]) fail(kName, ": particle ", sorted[k], " appears twice");
+  }
+  m_rest.resize(3, static_cast<Index>(count));
+  for (std::size_t k = 0; k < count; ++k) {
+    if (!(std::isfinite(m_volume[k]) && m_volume[k] > 0.0))
+      fail(kName, ": particle ", m_particles[k], " has volume ", m_volume[k], ", expected > 0");
+    m_rest.col(static_cast<Index>(k)) = rest_x.col(m_particles[k]);
+    if (!m_rest.col(static_cast<Index>(k)).allFinite())
+      fail(kName, ": particle ", m_particles[k], " has a non-finite rest position");
+  }
+
+  // Rest neighbourhoods: a sweep along x over the particles sorted by their rest x.
+  std::vector<std::size_t> order(count);
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+    return m_rest(0, static_cast<Index>(a)) < m_rest(0, static_cast<Index>(b)) ||
+           (m_rest(0, static_cast<Index>(a)) == m_rest(0, static_cast<Index>(b)) && a < b);
+  });
+  std::vector<std::vector<Index>> near(count);
+  for (std::size_t a = 0; a < count; ++a) {
+    const Index i = static_cast<Index>(order[a]);
+    for (std::size_t b = a + 1; b < count; ++b) {
+      const Index j = static_cast<Index>(order[b]);
+      if (m_rest(0, j) - m_rest(0, i) >= h) break;
+      if ((m_rest.col(j) - m_rest.col(i)).norm() < h) {
+        near[static_cast<std::size_t>(i)].push_back(j);
+        near[static_cast<std::size_t>(j)].push_back(i);
+      }
+    }
+  }
+  m_offset.assign(count + 1, 0);
+  for (std::size_t k = 0; k < count; ++k) {
+    std::sort(near[k].begin(), near[k].end());
+    m_offset[k + 1] = m_offset[k] + near[k].size();
+  }
+  m_neighbours.reserve(m_offset.back());
+  for (const auto& list : near) m_neighbours.insert(m_neighbours.end(), list.begin(), list.end());
+
+  // Corrected gradients and the penalty's weights.
+  m_g.resize(m_neighbours.size());
+  m_hg_weight.resize(m_neighbours.size());
+  for (std::size_t k = 0; k < count; ++k) {
+    Mat3 M = Mat3::Zero();
+    for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
+      const auto j = static_cast<std::size_t>(m_neighbours[e]);
+      const Vec3 d = m_rest.col(static_cast<Index>(j)) - m_rest.col(static_cast<Index>(k));
+      const double r = d.norm();
+      const Vec3 grad = kernel_slope(r, h) / r * d;
+      m_g[e] = grad;
+      M += m_volume[j] * d * grad.transpose();
+      m_hg_weight[e] = m_volume[k] * m_volume[j] * kernel(r, h) / (r * r);
+    }
+    const Eigen::JacobiSVD<Mat3> svd(M);
+    const Vec3 s = svd.singularValues();
+    if (!(s(0) > 0.0) || s(2) < kSingularMoment * s(0))
+      fail(kName, ": particle ", m_particles[k], " has ", m_offset[k + 1] - m_offset[k], " neighbours within h = ", h,
+           " that do not span space (moment matrix singular values ", s.transpose(),
+           "): a larger support radius or more particles around it");
+    const Mat3 correction = M.inverse().transpose();
+    for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) m_g[e] = correction * m_g[e];
+  }
+  m_state.resize(count);
+  for (State& s : m_state) s.F.setConstant(std::numeric_limits<double>::quiet_NaN());
+}
+
+void MeshfreeCorotated::validate(Index particle_count) const {
+  for (const Index p : m_particles)
+    if (p < 0 || p >= particle_count)
+      fail(kName, ": particle ", p, " is outside the system's ", particle_count, " particles");
+}
+
+Mat3 MeshfreeCorotated::gradient_of(const Vectors3& x, std::size_t k) const {
+  Mat3 F = Mat3::Zero();
+  const Vec3 xk = x.col(m_particles[k]);
+  for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
+    const auto j = static_cast<std::size_t>(m_neighbours[e]);
+    F += m_volume[j] * (Vec3(x.col(m_particles[j])) - xk) * m_g[e].transpose();
+  }
+  return F;
+}
+
+void MeshfreeCorotated::update_position_state(const Vectors3& x) {
+  for (std::size_t k = 0; k < m_particles.size(); ++k) {
+    State& s = m_state[k];
+    s.F = gradient_of(x, k);
+    const detail::SignedSvd svd = detail::signed_svd(s.F);
+    s.U = svd.U;
+    s.V = svd.V;
+    s.R = svd.U * svd.V.transpose();
+    s.sigma = svd.sigma;
+    s.phat = corotated_diagonal_stress(svd.sigma, m_mu, m_lambda);
+  }
+}
+
+double MeshfreeCorotated::potential_energy(const Vectors3& x) const {
+  double energy = 0.0;
+  for (std::size_t k = 0; k < m_particles.size(); ++k)
+    energy +=
+        m_volume[k] * detail::corotated_energy_density(detail::signed_svd(gradient_of(x, k)).sigma, m_mu, m_lambda);
+  return energy + hourglass_energy(x);
+}
+
+template <typename Term>
+void MeshfreeCorotated::scatter(Vectors3& f, Term&& term) const {
+  for (std::size_t k = 0; k < m_particles.size(); ++k) {
+    const Mat3 h = term(k);  // V_k times a first Piola-Kirchhoff stress (or its differential)
+    Vec3 sum = Vec3::Zero();
+    for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
+      const auto j = static_cast<std::size_t>(m_neighbours[e]);
+      const Vec3 t = m_volume[j] * (h * m_g[e]);
+      f.col(m_particles[j]) -= t;
+      sum += t;
+    }
+    f.col(m_particles[k]) += sum;
+  }
+}
+
+void MeshfreeCorotated::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
+  scatter(f, [&](std::size_t k) {
+    const detail::SignedSvd s = detail::signed_svd(gradient_of(x, k));
+    return Mat3(m_volume[k] * s.U * corotated_diagonal_stress(s.sigma, m_mu, m_lambda).asDiagonal() * s.V.transpose());
+  });
+  add_hourglass(x, 1.0, f);
+}
+
+// The corotated differential in the SVD frame (corotated_stress.hpp), per particle.
+void MeshfreeCorotated::add_elastic_differentials(const Vectors3& dx, Vectors3& df) const {
+  scatter(df, [&](std::size_t k) {
+    const State& s = m_state[k];
+    const Mat3 dF_hat = s.U.transpose() * gradient_of(dx, k) * s.V;
+    const Mat3 dP_hat = detail::corotated_stress_differential(dF_hat, s.sigma, s.phat, m_mu, m_lambda);
+    return Mat3(m_volume[k] * s.U * dP_hat * s.V.transpose());
+  });
+  add_hourglass(dx, 1.0, df);  // linear in the positions: its own differential
+}
+
+void MeshfreeCorotated::add_damping_forces(const Vectors3& v, Vectors3& f) const { add_implicit_products(v, 0.0, f); }
+
+// -(beta + b) V_k R (2 mu Edot + lambda tr(Edot) I) scattered by g, Edot = sym(R^T Fdot); plus b times
+// the penalty's (exact, constant) differential.
+void MeshfreeCorotated::add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
+  const double hg = m_settings.implicit ? b : 0.0;
+  const double scale = m_settings.beta + hg;
+  if (scale != 0.0) {
+    scatter(f, [&](std::size_t k) {
+      const Mat3& R = m_state[k].R;
+      const Mat3 RtFdot = R.transpose() * gradient_of(v, k);
+      const Mat3 Edot = 0.5 * (RtFdot + RtFdot.transpose());
+      const Mat3 Sdot = 2.0 * m_mu * Edot + (m_lambda * Edot.trace()) * Mat3::Identity();
+      return Mat3((m_volume[k] * scale) * R * Sdot);  // scatter() applies it as -h g, as a stress
+    });
+  }
+  if (hg != 0.0) add_hourglass(v, hg, f);
+}
+
+// E_hg = alpha mu / 2 sum_k sum_j w_kj |r_kj|^2, r_kj = x_j - x_k - F_k X_kj (linear in x, zero for
+// affine x). With b_kj = alpha mu w_kj r_kj and B_k = sum_j b_kj X_kj^T, since
+// F_k X_kj = sum_l V_l (x_l - x_k) (g_kl . X_kj):
+//   -dE/dx_j = -b_kj + V_j B_k g_kj   (j a neighbour of k),   -dE/dx_k = -(sum over j of that).
+void MeshfreeCorotated::add_hourglass(const Vectors3& x, double scale, Vectors3& f) const {
+  const double c = scale * m_settings.hourglass * m_mu;
+  if (c == 0.0) return;
+  std::vector<Vec3> b;
+  for (std::size_t k = 0; k < m_particles.size(); ++k) {
+    const Mat3 F = gradient_of(x, k);
+    const Vec3 xk = x.col(m_particles[k]);
+    b.assign(m_offset[k + 1] - m_offset[k], Vec3::Zero());
+    Mat3 B = Mat3::Zero();
+    for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
+      const auto j = static_cast<std::size_t>(m_neighbours[e]);
+      const Vec3 X = m_rest.col(static_cast<Index>(j)) - m_rest.col(static_cast<Index>(k));
+      const Vec3 r = Vec3(x.col(m_particles[j])) - xk - F * X;
+      b[e - m_offset[k]] = c * m_hg_weight[e] * r;
+      B += b[e - m_offset[k]] * X.transpose();
+    }
+    Vec3 sum = Vec3::Zero();
+    for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
+      const auto j = static_cast<std::size_t>(m_neighbours[e]);
+      const Vec3 t = -b[e - m_offset[k]] + m_volume[j] * (B * m_g[e]);
+      f.col(m_particles[j]) += t;
+      sum += t;
+    }
+    f.col(m_particles[k]) -= sum;
+  }
+}
+
+double MeshfreeCorotated::hourglass_energy(const Vectors3& x) const {
+  const double c = m_settings.hourglass * m_mu;
+  if (c == 0.0) return 0.0;
+  double energy = 0.0;
+  for (std::size_t k = 0; k < m_particles.size(); ++k) {
+    const Mat3 F = gradient_of(x, k);
+    const Vec3 xk = x.col(m_particles[k]);
+    for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
+      const auto j = static_cast<std::size_t>(m_neighbours[e]);
+      const Vec3 X = m_rest.col(static_cast<Index>(j)) - m_rest.col(static_cast<Index>(k));
+      energy += 0.5 * c * m_hg_weight[e] * (Vec3(x.col(m_particles[j])) - xk - F * X).squaredNorm();
+    }
+  }
+  return energy;
+}
+
+// Per stencil k (the particle and its neighbours), as element_bound_stable_dt: at rest
+//   dx^T K_k dx <= V_k (2 mu + lambda+) |dF_k|^2 + alpha mu sum_j w_kj |dr_kj|^2,
+// and |sum_a c_a dx_a|^2 <= (sum_a c_a^2 / m_a) |dx|_M^2 (Cauchy-Schwarz) for each linear map (dF_k's
+// columns and each r_kj). omega^2 is at most the largest sum over the stencils a particle is in.
+double MeshfreeCorotated::stable_dt(const VectorXd& m_eff) const {
+  const std::size_t count = m_particles.size();
+  std::vector<double> lambda_k(count, 0.0);
+  const auto inv = [&](std::size_t a) { return detail::inverse_mass(m_eff[m_particles[a]]); };
+  const double modulus = 2.0 * m_mu + std::max(m_lambda, 0.0);
+  const double c = m_settings.hourglass * m_mu;
+  for (std::size_t k = 0; k < count; ++k) {
+    Vec3 self = Vec3::Zero();
+    double sum = 0.0;
+    for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
+      const auto j = static_cast<std::size_t>(m_neighbours[e]);
+      const Vec3 cj = m_volume[j] * m_g[e];
+      self -= cj;
+      sum += cj.squaredNorm() * inv(j);
+    }
+    sum += self.squaredNorm() * inv(k);
+    double total = m_volume[k] * modulus * sum;
+    if (c > 0.0) {
+      for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
+        const auto j = static_cast<std::size_t>(m_neighbours[e]);
+        const Vec3 X = m_rest.col(static_cast<Index>(j)) - m_rest.col(static_cast<Index>(k));
+        // r_kj's coefficients: on x_l, delta_lj - V_l g_kl . X; on x_k, -1 + sum_l V_l g_kl . X.
+        double coefficients = 0.0, on_k = -1.0;
+        for (std::size_t f = m_offset[k]; f < m_offset[k + 1]; ++f) {
+          const auto l = static_cast<std::size_t>(m_neighbours[f]);
+          const double w = m_volume[l] * m_g[f].dot(X);
+          const double on_l = (l == j ? 1.0 : 0.0) - w;
+          on_k += w;
+          coefficients += on_l * on_l * inv(l);
+        }
+        coefficients += on_k * on_k * inv(k);
+        total += c * m_hg_weight[e] * coefficients;
+      }
+    }
+    lambda_k[k] = total;
+  }
+  // Each particle's sum over the stencils it is in: its own and its neighbours'.
+  double omega_sq = 0.0;
+  for (std::size_t a = 0; a < count; ++a) {
+    if (inv(a) == 0.0) continue;
+    double sum = lambda_k[a];
+    for (std::size_t e = m_offset[a]; e < m_offset[a + 1]; ++e)
+      sum += lambda_k[static_cast<std::size_t>(m_neighbours[e])];
+    omega_sq = std::max(omega_sq, sum);
+  }
+  return omega_sq > 0.0 ? 2.0 / std::sqrt(omega_sq) : kInfinity;
+}
+
+}  // namespace sinew
