@@ -5,6 +5,7 @@
 #include "sinew/forces/corotated_tets.hpp"
 #include "sinew/forces/dihedral_bending.hpp"
 #include "sinew/forces/edge_springs.hpp"
+#include "sinew/forces/elastic_rods.hpp"
 #include "sinew/forces/meshfree_corotated.hpp"
 #include "sinew/forces/triangle_membrane.hpp"
 #include "sinew/parallel.hpp"
@@ -452,6 +453,32 @@ ForceCase meshfree_corotated_case(bool small, std::mt19937& rng) {
   return {std::move(force), rest, x, masses(rest.cols(), 1000.0, {0}), 1.0, 1e4};
 }
 
+// Curved fibers (each edge turned from the last by up to 0.6 rad) of 5 particles (small) or 12,
+// one straight; deformed by a turn, a stretch and noise.
+ForceCase elastic_rods_case(bool small, std::mt19937& rng) {
+  const int fibers = small ? 3 : 220, per = small ? 5 : 12;
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  Vectors3 rest(3, fibers * per);
+  std::vector<std::vector<Index>> lines;
+  for (int k = 0; k < fibers; ++k) {
+    Vec3 at(u(rng), u(rng), u(rng)), direction = Vec3(u(rng), u(rng), u(rng)).normalized();
+    std::vector<Index> line;
+    for (int i = 0; i < per; ++i) {
+      const Index p = k * per + i;
+      rest.col(p) = at;
+      line.push_back(p);
+      if (k > 0) direction = (direction + 0.6 * Vec3(u(rng), u(rng), u(rng))).normalized();
+      at += 0.1 * direction;
+    }
+    lines.push_back(line);
+  }
+  auto force = std::make_unique<ElasticRods>(
+      lines, rest, ElasticRodsSettings{.stretch_stiffness = 50.0, .bending_stiffness = 0.02, .beta = 0.01});
+  const Mat3 turn = Eigen::AngleAxisd(0.5, Vec3(0.3, -1, 0.2).normalized()).toRotationMatrix();
+  const Vectors3 x = turn * Vec3(1.04, 0.97, 1.0).asDiagonal() * rest + random_like(rest, 0.01, rng);
+  return {std::move(force), rest, x, masses(rest.cols(), 0.01, {0}), 0.1, 5.0};
+}
+
 struct NamedFactory {
   const char* name;
   ForceFactory make;
@@ -463,6 +490,7 @@ const NamedFactory kForceFactories[] = {
     {"EdgeSprings", edge_springs_case},         {"TriangleMembrane", triangle_membrane_case},
     {"DihedralBending", dihedral_bending_case}, {"CorotatedTets", corotated_tets_case},
     {"CentroidSprings", centroid_springs_case}, {"MeshfreeCorotated", meshfree_corotated_case},
+    {"ElasticRods", elastic_rods_case},
 };
 
 class EveryForce : public ::testing::TestWithParam<NamedFactory> {

@@ -1,0 +1,245 @@
+// Elastic rods without twist: see the header for the energies. The bending terms' derivatives are
+// taken on the hinge's edges e and f (then to the vertices: x_{i-1} gets -d/de, x_i d/de - d/df,
+// x_{i+1} d/df). With n = e x f and D = |ebar||fbar| + e . f, kappa = 2 n / D, and for a fixed vector
+// a, phi = a . kappa has
+//   dphi/de = 2 (f x a) / D - 2 (a . n) f / D^2,      dphi/df = 2 (a x e) / D - 2 (a . n) e / D^2,
+// and, along (de, df) with dn = de x f + e x df, dD = de . f + e . df, the derivative of that pair
+//   d/de: 2 (df x a) / D - 2 (a . dn) f / D^2 - 2 (f x a) dD / D^2 - 2 (a . n) df / D^2 + 4 (a . n) dD f / D^3
+//   d/df: 2 (a x de) / D - 2 (a . dn) e / D^2 - 2 (a x e) dD / D^2 - 2 (a . n) de / D^2 + 4 (a . n) dD e / D^3.
+// E_b = EI (psi - psibar)^2 / Lbar, psi = |kappa|, has gradient (2 EI / Lbar) c grad(kappa . kappa)/2
+// with c = 1 - psibar / psi, i.e. (2 EI / Lbar) c dphi|_{a = kappa}, and differential
+//   (2 EI / Lbar) [c (H_phi|_{a = kappa} + dphi|_{a = dkappa}) + psibar (kappa . dkappa) / psi^3 dphi|_{a = kappa}].
+#include "sinew/forces/elastic_rods.hpp"
+
+#include "element_support.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <utility>
+
+namespace sinew {
+
+namespace {
+
+constexpr std::string_view kName = "elastic rods";
+// Below this |kappa| a curved hinge's bending direction is undefined: no bending force there.
+constexpr double kFlat = 1e-12;
+// A rest turning below this (|kappa| ~ the angle) is straight: round-off of a collinear rest shape.
+constexpr double kStraight = 1e-10;
+
+struct HingeGeometry {
+  Vec3 e, f, n, kappa;
+  double D = 0.0, psi = 0.0;
+};
+
+HingeGeometry geometry(const Vec3& xa, const Vec3& xb, const Vec3& xc, double e_rest, double f_rest) {
+  HingeGeometry g;
+  g.e = xb - xa;
+  g.f = xc - xb;
+  g.n = g.e.cross(g.f);
+  // Folded back on itself (e . f -> -|ebar||fbar|) the curvature is unbounded; kept finite.
+  g.D = std::max(e_rest * f_rest + g.e.dot(g.f), 1e-12 * e_rest * f_rest);
+  g.kappa = 2.0 * g.n / g.D;
+  g.psi = g.kappa.norm();
+  return g;
+}
+
+// d(a . kappa)/de and /df.
+std::pair<Vec3, Vec3> phi_gradient(const HingeGeometry& g, const Vec3& a) {
+  const double an = a.dot(g.n), D2 = g.D * g.D;
+  return {2.0 * g.f.cross(a) / g.D - 2.0 * an * g.f / D2, 2.0 * a.cross(g.e) / g.D - 2.0 * an * g.e / D2};
+}
+
+Vec3 kappa_differential(const HingeGeometry& g, const Vec3& de, const Vec3& df) {
+  const Vec3 dn = de.cross(g.f) + g.e.cross(df);
+  const double dD = de.dot(g.f) + g.e.dot(df);
+  return 2.0 * dn / g.D - 2.0 * g.n * dD / (g.D * g.D);
+}
+
+// The derivative of phi_gradient(g, a) along (de, df), a fixed.
+std::pair<Vec3, Vec3> phi_hessian(const HingeGeometry& g, const Vec3& a, const Vec3& de, const Vec3& df) {
+  const Vec3 dn = de.cross(g.f) + g.e.cross(df);
+  const double dD = de.dot(g.f) + g.e.dot(df);
+  const double an = a.dot(g.n), adn = a.dot(dn);
+  const double D = g.D, D2 = D * D, D3 = D2 * D;
+  const Vec3 he = 2.0 * df.cross(a) / D - 2.0 * adn * g.f / D2 - 2.0 * g.f.cross(a) * dD / D2 - 2.0 * an * df / D2 +
+                  4.0 * an * dD * g.f / D3;
+  const Vec3 hf = 2.0 * a.cross(de) / D - 2.0 * adn * g.e / D2 - 2.0 * a.cross(g.e) * dD / D2 - 2.0 * an * de / D2 +
+                  4.0 * an * dD * g.e / D3;
+  return {he, hf};
+}
+
+}  // namespace
+
+ElasticRods::ElasticRods(std::vector<std::vector<Index>> fibers, const Vectors3& rest_x,
+                         const ElasticRodsSettings& settings)
+    : m_fibers(std::move(fibers)), m_settings(settings) {
+  detail::check_non_negative(kName, "stretch_stiffness", m_settings.stretch_stiffness);
+  detail::check_non_negative(kName, "bending_stiffness", m_settings.bending_stiffness);
+  detail::check_non_negative(kName, "beta", m_settings.beta);
+  m_edge_offset.push_back(0);
+  m_hinge_offset.push_back(0);
+  for (std::size_t k = 0; k < m_fibers.size(); ++k) {
+    const std::vector<Index>& p = m_fibers[k];
+    if (p.size() < 2) fail(kName, ": fiber ", k, " has ", p.size(), " particles, expected at least 2");
+    std::vector<Index> sorted = p;
+    std::sort(sorted.begin(), sorted.end());
+    for (std::size_t i = 0; i < sorted.size(); ++i) {
+      if (sorted[i] < 0 || sorted[i] >= rest_x.cols())
+        fail(kName, ": fiber ", k, ": particle ", sorted[i], " is outside the ", rest_x.cols(), " rest positions");
+      if (i > 0 && sorted[i] == sorted[i - 1]) fail(kName, ": fiber ", k, ": particle ", sorted[i], " appears twice");
+    }
+    for (std::size_t i = 0; i + 1 < p.size(); ++i) {
+      const double rest = (rest_x.col(p[i + 1]) - rest_x.col(p[i])).norm();
+      if (!(rest > 0.0 && std::isfinite(rest)))
+        fail(kName, ": fiber ", k, ": edge ", i, " (particles ", p[i], ", ", p[i + 1], ") has rest length ", rest);
+      m_edges.push_back({p[i], p[i + 1], rest});
+    }
+    for (std::size_t i = 1; i + 1 < p.size(); ++i) {
+      Hinge h{p[i - 1],
+              p[i],
+              p[i + 1],
+              m_edges[m_edges.size() - p.size() + i].rest,
+              m_edges[m_edges.size() - p.size() + i + 1].rest,
+              0.0};
+      h.psi_rest = geometry(rest_x.col(h.a), rest_x.col(h.b), rest_x.col(h.c), h.e_rest, h.f_rest).psi;
+      if (h.psi_rest < kStraight) h.psi_rest = 0.0;  // straight to round-off: the smooth form
+      m_hinges.push_back(h);
+    }
+    m_edge_offset.push_back(m_edges.size());
+    m_hinge_offset.push_back(m_hinges.size());
+  }
+  m_x = rest_x;
+}
+
+void ElasticRods::validate(Index particle_count) const {
+  for (std::size_t k = 0; k < m_fibers.size(); ++k)
+    for (const Index p : m_fibers[k])
+      if (p >= particle_count)
+        fail(kName, ": fiber ", k, ": particle ", p, " is outside the system's ", particle_count, " particles");
+}
+
+double ElasticRods::edge_energy(const Edge& e, const Vectors3& x) const {
+  const double stretch = (x.col(e.b) - x.col(e.a)).norm() - e.rest;
+  return 0.5 * m_settings.stretch_stiffness * stretch * stretch / e.rest;
+}
+
+double ElasticRods::hinge_energy(const Hinge& h, const Vectors3& x) const {
+  const HingeGeometry g = geometry(x.col(h.a), x.col(h.b), x.col(h.c), h.e_rest, h.f_rest);
+  const double bend = g.psi - h.psi_rest;
+  return m_settings.bending_stiffness * bend * bend / (h.e_rest + h.f_rest);
+}
+
+double ElasticRods::fiber_energy(std::size_t k, const Vectors3& x) const {
+  double energy = 0.0;
+  for (std::size_t i = m_edge_offset[k]; i < m_edge_offset[k + 1]; ++i) energy += edge_energy(m_edges[i], x);
+  for (std::size_t i = m_hinge_offset[k]; i < m_hinge_offset[k + 1]; ++i) energy += hinge_energy(m_hinges[i], x);
+  return energy;
+}
+
+double ElasticRods::potential_energy(const Vectors3& x) const {
+  double energy = 0.0;
+  for (std::size_t k = 0; k < m_fibers.size(); ++k) energy += fiber_energy(k, x);
+  return energy;
+}
+
+void ElasticRods::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
+  const double EA = m_settings.stretch_stiffness, EI = m_settings.bending_stiffness;
+  for (const Edge& e : m_edges) {
+    const Vec3 d = x.col(e.b) - x.col(e.a);
+    const double l = d.norm();
+    const Vec3 grad = (EA / e.rest) * (l - e.rest) / l * d;
+    f.col(e.a) += grad;
+    f.col(e.b) -= grad;
+  }
+  if (EI == 0.0) return;
+  for (const Hinge& h : m_hinges) {
+    const HingeGeometry g = geometry(x.col(h.a), x.col(h.b), x.col(h.c), h.e_rest, h.f_rest);
+    if (h.psi_rest > 0.0 && g.psi < kFlat) continue;
+    const double c = h.psi_rest > 0.0 ? 1.0 - h.psi_rest / g.psi : 1.0;
+    const auto [ge, gf] = phi_gradient(g, g.kappa);
+    const double scale = 2.0 * EI / (h.e_rest + h.f_rest) * c;
+    f.col(h.a) += scale * ge;
+    f.col(h.b) += scale * (gf - ge);
+    f.col(h.c) -= scale * gf;
+  }
+}
+
+void ElasticRods::add_elastic_differentials(const Vectors3& dx, Vectors3& df) const {
+  const double EA = m_settings.stretch_stiffness, EI = m_settings.bending_stiffness;
+  const Vectors3& x = m_x;
+  for (const Edge& e : m_edges) {
+    const Vec3 d = x.col(e.b) - x.col(e.a);
+    const double l = d.norm();
+    const Vec3 u = d / l;
+    const Vec3 dd = dx.col(e.b) - dx.col(e.a);
+    const double along = u.dot(dd);
+    const Vec3 dgrad = (EA / e.rest) * ((1.0 - e.rest / l) * (dd - along * u) + along * u);
+    df.col(e.a) += dgrad;
+    df.col(e.b) -= dgrad;
+  }
+  if (EI == 0.0) return;
+  for (const Hinge& h : m_hinges) {
+    const HingeGeometry g = geometry(x.col(h.a), x.col(h.b), x.col(h.c), h.e_rest, h.f_rest);
+    if (h.psi_rest > 0.0 && g.psi < kFlat) continue;
+    const Vec3 de = dx.col(h.b) - dx.col(h.a), dfv = dx.col(h.c) - dx.col(h.b);
+    const Vec3 dkappa = kappa_differential(g, de, dfv);
+    const auto [he, hf] = phi_hessian(g, g.kappa, de, dfv);
+    const auto [ke, kf] = phi_gradient(g, dkappa);
+    Vec3 ge = he + ke, gf = hf + kf;
+    if (h.psi_rest > 0.0) {
+      const double c = 1.0 - h.psi_rest / g.psi;
+      const double dc = h.psi_rest * g.kappa.dot(dkappa) / (g.psi * g.psi * g.psi);
+      const auto [pe, pf] = phi_gradient(g, g.kappa);
+      ge = c * ge + dc * pe;
+      gf = c * gf + dc * pf;
+    }
+    const double scale = 2.0 * EI / (h.e_rest + h.f_rest);
+    df.col(h.a) += scale * ge;
+    df.col(h.b) += scale * (gf - ge);
+    df.col(h.c) -= scale * gf;
+  }
+}
+
+void ElasticRods::add_damping_forces(const Vectors3& v, Vectors3& f) const {
+  if (m_settings.beta == 0.0) return;
+  for (const Edge& e : m_edges) {
+    const Vec3 u = (m_x.col(e.b) - m_x.col(e.a)).normalized();
+    const double rate = u.dot(v.col(e.b) - v.col(e.a));
+    const Vec3 force = (m_settings.beta * m_settings.stretch_stiffness / e.rest * rate) * u;
+    f.col(e.a) += force;
+    f.col(e.b) -= force;
+  }
+}
+
+void ElasticRods::add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
+  (void)b;  // no definite differential offered: the fibers stay explicit
+  add_damping_forces(v, f);
+}
+
+// At rest, per edge x^T K x <= EA / |ebar| |de|^2 <= EA / |ebar| (1/m_a + 1/m_b) |x|_M^2; per hinge
+// (straight) K = (2 EI / Lbar) J^T J with |dkappa| <= |de| / |ebar| + |df| / |fbar|, so
+// |dkappa|^2 <= 2 (|de|^2 / |ebar|^2 + |df|^2 / |fbar|^2) and |de|^2 <= 2 (|dx_a|^2 + |dx_b|^2);
+// a curved rest shape's hinge is given twice that. omega^2 is at most the largest sum over the
+// terms a particle is in (element_bound_stable_dt's argument).
+double ElasticRods::stable_dt(const VectorXd& m_eff) const {
+  const auto inv = [&](Index i) { return detail::inverse_mass(m_eff[i]); };
+  std::vector<double> sum(static_cast<std::size_t>(m_eff.size()), 0.0);
+  for (const Edge& e : m_edges) {
+    const double lambda = m_settings.stretch_stiffness / e.rest * (inv(e.a) + inv(e.b));
+    sum[static_cast<std::size_t>(e.a)] += lambda;
+    sum[static_cast<std::size_t>(e.b)] += lambda;
+  }
+  for (const Hinge& h : m_hinges) {
+    const double scale = 2.0 * m_settings.bending_stiffness / (h.e_rest + h.f_rest) * (h.psi_rest > 0.0 ? 2.0 : 1.0);
+    const double lambda =
+        scale * 4.0 * ((inv(h.a) + inv(h.b)) / (h.e_rest * h.e_rest) + (inv(h.b) + inv(h.c)) / (h.f_rest * h.f_rest));
+    for (const Index i : {h.a, h.b, h.c}) sum[static_cast<std::size_t>(i)] += lambda;
+  }
+  double omega_sq = 0.0;
+  for (std::size_t i = 0; i < sum.size(); ++i)
+    if (inv(static_cast<Index>(i)) > 0.0) omega_sq = std::max(omega_sq, sum[i]);
+  return omega_sq > 0.0 ? 2.0 / std::sqrt(omega_sq) : kInfinity;
+}
+
+}  // namespace sinew
