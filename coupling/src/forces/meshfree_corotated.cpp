@@ -119,8 +119,17 @@ MeshfreeCorotated::MeshfreeCorotated(std::vector<Index> particles, const Vectors
     const Mat3 correction = M.inverse().transpose();
     for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) m_g[e] = correction * m_g[e];
   }
+  m_fraction.assign(count, 1.0);
   m_state.resize(count);
   for (State& s : m_state) s.F.setConstant(std::numeric_limits<double>::quiet_NaN());
+}
+
+void MeshfreeCorotated::set_volume_fraction(Index particle, double fraction) {
+  if (!(fraction > 0.0 && fraction <= 1.0))
+    fail(kName, ": particle ", particle, ": volume fraction ", fraction, ", expected in (0, 1]");
+  const auto at = std::find(m_particles.begin(), m_particles.end(), particle);
+  if (at == m_particles.end()) fail(kName, ": particle ", particle, " is not one of its material particles");
+  m_fraction[static_cast<std::size_t>(at - m_particles.begin())] = fraction;
 }
 
 void MeshfreeCorotated::validate(Index particle_count) const {
@@ -155,8 +164,8 @@ void MeshfreeCorotated::update_position_state(const Vectors3& x) {
 double MeshfreeCorotated::potential_energy(const Vectors3& x) const {
   double energy = 0.0;
   for (std::size_t k = 0; k < m_particles.size(); ++k)
-    energy +=
-        m_volume[k] * detail::corotated_energy_density(detail::signed_svd(gradient_of(x, k)).sigma, m_mu, m_lambda);
+    energy += m_volume[k] * m_fraction[k] *
+              detail::corotated_energy_density(detail::signed_svd(gradient_of(x, k)).sigma, m_mu, m_lambda);
   return energy + hourglass_energy(x);
 }
 
@@ -178,7 +187,8 @@ void MeshfreeCorotated::scatter(Vectors3& f, Term&& term) const {
 void MeshfreeCorotated::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
   scatter(f, [&](std::size_t k) {
     const detail::SignedSvd s = detail::signed_svd(gradient_of(x, k));
-    return Mat3(m_volume[k] * s.U * corotated_diagonal_stress(s.sigma, m_mu, m_lambda).asDiagonal() * s.V.transpose());
+    return Mat3(m_volume[k] * m_fraction[k] * s.U * corotated_diagonal_stress(s.sigma, m_mu, m_lambda).asDiagonal() *
+                s.V.transpose());
   });
   add_hourglass(x, 1.0, f);
 }
@@ -189,7 +199,7 @@ void MeshfreeCorotated::add_elastic_differentials(const Vectors3& dx, Vectors3& 
     const State& s = m_state[k];
     const Mat3 dF_hat = s.U.transpose() * gradient_of(dx, k) * s.V;
     const Mat3 dP_hat = detail::corotated_stress_differential(dF_hat, s.sigma, s.phat, m_mu, m_lambda);
-    return Mat3(m_volume[k] * s.U * dP_hat * s.V.transpose());
+    return Mat3(m_volume[k] * m_fraction[k] * s.U * dP_hat * s.V.transpose());
   });
   add_hourglass(dx, 1.0, df);  // linear in the positions: its own differential
 }
@@ -207,7 +217,7 @@ void MeshfreeCorotated::add_implicit_products(const Vectors3& v, double b, Vecto
       const Mat3 RtFdot = R.transpose() * gradient_of(v, k);
       const Mat3 Edot = 0.5 * (RtFdot + RtFdot.transpose());
       const Mat3 Sdot = 2.0 * m_mu * Edot + (m_lambda * Edot.trace()) * Mat3::Identity();
-      return Mat3((m_volume[k] * scale) * R * Sdot);  // scatter() applies it as -h g, as a stress
+      return Mat3((m_volume[k] * m_fraction[k] * scale) * R * Sdot);  // scatter() applies it as -h g, as a stress
     });
   }
   if (hg != 0.0) add_hourglass(v, hg, f);
@@ -230,7 +240,7 @@ void MeshfreeCorotated::add_hourglass(const Vectors3& x, double scale, Vectors3&
       const auto j = static_cast<std::size_t>(m_neighbours[e]);
       const Vec3 X = m_rest.col(static_cast<Index>(j)) - m_rest.col(static_cast<Index>(k));
       const Vec3 r = Vec3(x.col(m_particles[j])) - xk - F * X;
-      b[e - m_offset[k]] = c * m_hg_weight[e] * r;
+      b[e - m_offset[k]] = c * m_fraction[k] * m_hg_weight[e] * r;
       B += b[e - m_offset[k]] * X.transpose();
     }
     Vec3 sum = Vec3::Zero();
@@ -254,7 +264,7 @@ double MeshfreeCorotated::hourglass_energy(const Vectors3& x) const {
     for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
       const auto j = static_cast<std::size_t>(m_neighbours[e]);
       const Vec3 X = m_rest.col(static_cast<Index>(j)) - m_rest.col(static_cast<Index>(k));
-      energy += 0.5 * c * m_hg_weight[e] * (Vec3(x.col(m_particles[j])) - xk - F * X).squaredNorm();
+      energy += 0.5 * c * m_fraction[k] * m_hg_weight[e] * (Vec3(x.col(m_particles[j])) - xk - F * X).squaredNorm();
     }
   }
   return energy;
@@ -280,7 +290,7 @@ double MeshfreeCorotated::stable_dt(const VectorXd& m_eff) const {
       sum += cj.squaredNorm() * inv(j);
     }
     sum += self.squaredNorm() * inv(k);
-    double total = m_volume[k] * modulus * sum;
+    double total = m_volume[k] * m_fraction[k] * modulus * sum;
     if (c > 0.0) {
       for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
         const auto j = static_cast<std::size_t>(m_neighbours[e]);
@@ -295,7 +305,7 @@ double MeshfreeCorotated::stable_dt(const VectorXd& m_eff) const {
           coefficients += on_l * on_l * inv(l);
         }
         coefficients += on_k * on_k * inv(k);
-        total += c * m_hg_weight[e] * coefficients;
+        total += c * m_fraction[k] * m_hg_weight[e] * coefficients;
       }
     }
     lambda_k[k] = total;

@@ -79,6 +79,10 @@ class MeshfreeCorotated final : public Force {
   }
   double mu() const { return m_mu; }
   double lambda() const { return m_lambda; }
+  /// The part (1 - lambda, eq. 18) of material particle `particle`'s stencil that is matrix where
+  /// fibers take the rest: its energy, forces, damping and penalty are scaled by it. 1 by default;
+  /// set before the system's first step.
+  void set_volume_fraction(Index particle, double fraction);
 
  private:
   struct State {
@@ -102,6 +106,7 @@ class MeshfreeCorotated final : public Force {
   std::vector<Index> m_neighbours;    // positions in m_particles
   std::vector<Vec3> m_g;              // corrected kernel gradient g_kj per neighbour entry
   std::vector<double> m_hg_weight;    // V_k V_j W_kj / |X_kj|^2 per neighbour entry
+  std::vector<double> m_fraction;     // per material particle: its stencil's matrix fraction
   std::vector<State> m_state;
 };
 
