@@ -258,3 +258,47 @@ TEST(EmbeddedFibers, AxialFibersMakeTheBlockStifferAlongThem) {
 
 }  // namespace
 }  // namespace sinew
+
+namespace sinew {
+namespace {
+
+// Breaking (figure 10): a bent, stretched fiber split at an edge loses exactly that edge's stretching
+// term and the bending terms of the two hinges that use it (the energy drops by them to round-off);
+// the other terms keep their rest data, nothing moves and the forces still sum to zero. A fiber pulled
+// past a strain breaks there, into pieces whose ends carry no bending.
+TEST(ElasticRods, ABreakRemovesExactlyItsTerms) {
+  const Index n = 8;
+  Vectors3 rest(3, n), x(3, n);
+  for (Index i = 0; i < n; ++i) {
+    rest.col(i) = Vec3(0.05 * i, 0.01 * std::sin(0.7 * i), 0);
+    x.col(i) = Vec3(0.052 * i, 0.02 * std::sin(0.9 * i), 0.003 * i * i);
+  }
+  std::vector<Index> line;
+  for (Index i = 0; i < n; ++i) line.push_back(i);
+  ElasticRods rods({line}, rest, {.stretch_stiffness = 100.0, .bending_stiffness = 1e-2});
+  const double before = rods.potential_energy(x);
+  // The removed terms, from a rod made of them alone: edge 3 (particles 3, 4) and hinges 3 and 4.
+  const ElasticRods edge({{3, 4}}, rest, {.stretch_stiffness = 100.0, .bending_stiffness = 0.0});
+  const ElasticRods hinges({{2, 3, 4}, {3, 4, 5}}, rest, {.stretch_stiffness = 0.0, .bending_stiffness = 1e-2});
+  const double removed = edge.potential_energy(x) + hinges.potential_energy(x);
+  rods.break_fiber(0, 3);
+  ASSERT_EQ(rods.fibers().size(), 2u);
+  EXPECT_EQ(rods.fibers()[0], (std::vector<Index>{0, 1, 2, 3}));
+  EXPECT_EQ(rods.fibers()[1], (std::vector<Index>{4, 5, 6, 7}));
+  EXPECT_NEAR(rods.potential_energy(x), before - removed, 1e-14 * before);
+  EXPECT_GT(removed, 0.0);
+  Vectors3 f = Vectors3::Zero(3, n);
+  rods.add_elastic_forces(x, f);
+  EXPECT_LT(f.rowwise().sum().norm(), 1e-12 * f.cwiseAbs().maxCoeff());
+  // Pulled past 10% at its sixth edge only: one break, there.
+  Vectors3 pulled = rest;
+  for (Index i = 6; i < n; ++i) pulled(0, i) += 0.01;
+  ElasticRods whole({line}, rest, {.stretch_stiffness = 100.0, .bending_stiffness = 1e-2});
+  EXPECT_EQ(whole.break_stretched(pulled, 0.1), 1u);
+  ASSERT_EQ(whole.fibers().size(), 2u);
+  EXPECT_EQ(whole.fibers()[1], (std::vector<Index>{6, 7}));
+  EXPECT_EQ(whole.break_stretched(pulled, 0.1), 0u);
+}
+
+}  // namespace
+}  // namespace sinew

@@ -77,8 +77,6 @@ ElasticRods::ElasticRods(std::vector<std::vector<Index>> fibers, const Vectors3&
   detail::check_non_negative(kName, "stretch_stiffness", m_settings.stretch_stiffness);
   detail::check_non_negative(kName, "bending_stiffness", m_settings.bending_stiffness);
   detail::check_non_negative(kName, "beta", m_settings.beta);
-  m_edge_offset.push_back(0);
-  m_hinge_offset.push_back(0);
   for (std::size_t k = 0; k < m_fibers.size(); ++k) {
     const std::vector<Index>& p = m_fibers[k];
     if (p.size() < 2) fail(kName, ": fiber ", k, " has ", p.size(), " particles, expected at least 2");
@@ -93,23 +91,67 @@ ElasticRods::ElasticRods(std::vector<std::vector<Index>> fibers, const Vectors3&
       const double rest = (rest_x.col(p[i + 1]) - rest_x.col(p[i])).norm();
       if (!(rest > 0.0 && std::isfinite(rest)))
         fail(kName, ": fiber ", k, ": edge ", i, " (particles ", p[i], ", ", p[i + 1], ") has rest length ", rest);
-      m_edges.push_back({p[i], p[i + 1], rest});
     }
+  }
+  m_rest = rest_x;
+  rebuild();
+  m_x = rest_x;
+}
+
+// The terms of every fiber from the rest positions: the same computation for the terms a break
+// leaves, so they keep their rest data to the bit.
+void ElasticRods::rebuild() {
+  m_edges.clear();
+  m_hinges.clear();
+  m_edge_offset.assign(1, 0);
+  m_hinge_offset.assign(1, 0);
+  for (const std::vector<Index>& p : m_fibers) {
+    const std::size_t first = m_edges.size();
+    for (std::size_t i = 0; i + 1 < p.size(); ++i)
+      m_edges.push_back({p[i], p[i + 1], (m_rest.col(p[i + 1]) - m_rest.col(p[i])).norm()});
     for (std::size_t i = 1; i + 1 < p.size(); ++i) {
-      Hinge h{p[i - 1],
-              p[i],
-              p[i + 1],
-              m_edges[m_edges.size() - p.size() + i].rest,
-              m_edges[m_edges.size() - p.size() + i + 1].rest,
-              0.0};
-      h.psi_rest = geometry(rest_x.col(h.a), rest_x.col(h.b), rest_x.col(h.c), h.e_rest, h.f_rest).psi;
+      Hinge h{p[i - 1], p[i], p[i + 1], m_edges[first + i - 1].rest, m_edges[first + i].rest, 0.0};
+      h.psi_rest = geometry(m_rest.col(h.a), m_rest.col(h.b), m_rest.col(h.c), h.e_rest, h.f_rest).psi;
       if (h.psi_rest < kStraight) h.psi_rest = 0.0;  // straight to round-off: the smooth form
       m_hinges.push_back(h);
     }
     m_edge_offset.push_back(m_edges.size());
     m_hinge_offset.push_back(m_hinges.size());
   }
-  m_x = rest_x;
+}
+
+void ElasticRods::break_fiber(std::size_t k, std::size_t edge) {
+  if (k >= m_fibers.size()) fail(kName, ": break: no fiber ", k, " (", m_fibers.size(), " fibers)");
+  std::vector<Index>& p = m_fibers[k];
+  if (edge + 1 >= p.size()) fail(kName, ": break: fiber ", k, " has no edge ", edge, " (", p.size() - 1, " edges)");
+  std::vector<Index> tail(p.begin() + static_cast<std::ptrdiff_t>(edge) + 1, p.end());
+  p.resize(edge + 1);
+  // A piece of one particle has no terms left: it is dropped from the list.
+  if (p.size() < 2) m_fibers.erase(m_fibers.begin() + static_cast<std::ptrdiff_t>(k));
+  if (tail.size() >= 2)
+    m_fibers.insert(m_fibers.begin() + static_cast<std::ptrdiff_t>(std::min(k + 1, m_fibers.size())), tail);
+  rebuild();
+}
+
+std::size_t ElasticRods::break_stretched(const Vectors3& x, double strain) {
+  if (!(strain > 0.0)) fail(kName, ": break_stretched: strain ", strain, " must be positive");
+  std::size_t broken = 0, k = 0;
+  while (k < m_fibers.size()) {
+    const std::vector<Index>& p = m_fibers[k];
+    std::size_t at = p.size();
+    for (std::size_t i = 0; i + 1 < p.size() && at == p.size(); ++i)
+      if ((x.col(p[i + 1]) - x.col(p[i])).norm() > (1.0 + strain) * (m_rest.col(p[i + 1]) - m_rest.col(p[i])).norm())
+        at = i;
+    if (at == p.size()) {
+      ++k;
+      continue;
+    }
+    break_fiber(k, at);
+    ++broken;
+    // The head (edges before `at`, none stretched) is done when it was kept; the tail comes next.
+    if (at >= 1) ++k;
+  }
+  return broken;
 }
 
 void ElasticRods::validate(Index particle_count) const {

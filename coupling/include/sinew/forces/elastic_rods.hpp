@@ -53,8 +53,16 @@ class ElasticRods final : public Force {
   double stable_dt(const VectorXd& m_eff) const override;
 
   const std::vector<std::vector<Index>>& fibers() const { return m_fibers; }
-  /// The energy of fiber k's stretching and bending terms at x (breaking removes terms by fiber).
+  /// The energy of fiber k's stretching and bending terms at x.
   double fiber_energy(std::size_t k, const Vectors3& x) const;
+  /// Breaking (figure 10): fiber k splits at its edge `edge` (between its particles edge and edge + 1)
+  /// into two fibers; that edge's stretching term and the bending terms of the two hinges that use it
+  /// go, every other term stays as it was (rest data to the bit), so the energy drops by exactly the
+  /// removed terms and nothing moves. A piece of one particle is dropped. Between steps.
+  void break_fiber(std::size_t k, std::size_t edge);
+  /// Breaks every fiber at its first edge stretched past (1 + strain) of its rest length, again in
+  /// the pieces; returns how many breaks.
+  std::size_t break_stretched(const Vectors3& x, double strain);
 
  private:
   struct Edge {
@@ -65,6 +73,7 @@ class ElasticRods final : public Force {
     Index a = -1, b = -1, c = -1;  // x_{i-1}, x_i, x_{i+1}
     double e_rest = 0.0, f_rest = 0.0, psi_rest = 0.0;
   };
+  void rebuild();
   double edge_energy(const Edge& e, const Vectors3& x) const;
   double hinge_energy(const Hinge& h, const Vectors3& x) const;
 
@@ -73,6 +82,7 @@ class ElasticRods final : public Force {
   std::vector<Edge> m_edges;
   std::vector<Hinge> m_hinges;
   std::vector<std::size_t> m_edge_offset, m_hinge_offset;  // per fiber, into m_edges and m_hinges
+  Vectors3 m_rest;                                         // the rest positions
   Vectors3 m_x;                                            // the cached positions
 };
 
