@@ -473,7 +473,8 @@ ForceCase elastic_rods_case(bool small, std::mt19937& rng) {
     lines.push_back(line);
   }
   auto force = std::make_unique<ElasticRods>(
-      lines, rest, ElasticRodsSettings{.stretch_stiffness = 50.0, .bending_stiffness = 0.02, .beta = 0.01});
+      lines, rest,
+      ElasticRodsSettings{.stretch_stiffness = 50.0, .bending_stiffness = 0.02, .beta = 0.01, .implicit = true});
   const Mat3 turn = Eigen::AngleAxisd(0.5, Vec3(0.3, -1, 0.2).normalized()).toRotationMatrix();
   const Vectors3 x = turn * Vec3(1.04, 0.97, 1.0).asDiagonal() * rest + random_like(rest, 0.01, rng);
   return {std::move(force), rest, x, masses(rest.cols(), 0.01, {0}), 0.1, 5.0};

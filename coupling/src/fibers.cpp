@@ -63,7 +63,8 @@ EmbeddedFibers embed_fibers(System& system, MeshfreeCorotated& matrix, double h,
       std::make_unique<ElasticRods>(out.fibers, system.particles().x,
                                     ElasticRodsSettings{.stretch_stiffness = lambda * settings.stretch_stiffness,
                                                         .bending_stiffness = lambda * settings.bending_stiffness,
-                                                        .beta = settings.beta}));
+                                                        .beta = settings.beta,
+                                                        .implicit = settings.implicit}));
   if (lambda > 0.0)
     for (const Index i : carriers) matrix.set_volume_fraction(i, 1.0 - lambda);
   return out;

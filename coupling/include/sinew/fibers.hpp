@@ -27,6 +27,7 @@ struct FiberSettings {
   double bending_stiffness = 1e-4;  ///< its EI [N m^2]
   double beta = 0.0;                ///< axial damping time [s]
   double lambda = 0.5;              ///< volume fraction, in [0, 1)
+  bool implicit = false;            ///< ElasticRodsSettings::implicit
 };
 
 struct EmbeddedFibers {

@@ -254,9 +254,45 @@ void ElasticRods::add_damping_forces(const Vectors3& v, Vectors3& f) const {
   }
 }
 
+// D v + b K+ v. K+ keeps each edge's axial stiffness and its transverse term only where stretched
+// (EA / |ebar| [u u^T + max(0, 1 - |ebar| / l) (I - u u^T)]), and each hinge's Gauss-Newton part
+// (2 EI / Lbar) [max(c, 0) J^T J + psibar / psi^3 (J^T kappa)(kappa^T J)], J = dkappa: both positive
+// semi-definite, so the forces' K+ is negative semi-definite; the exact differential where the
+// curvature terms vanish (straight, at rest).
 void ElasticRods::add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
-  (void)b;  // no definite differential offered: the fibers stay explicit
   add_damping_forces(v, f);
+  if (!m_settings.implicit || b == 0.0) return;
+  const double EA = m_settings.stretch_stiffness, EI = m_settings.bending_stiffness;
+  const Vectors3& x = m_x;
+  for (const Edge& e : m_edges) {
+    const Vec3 d = x.col(e.b) - x.col(e.a);
+    const double l = d.norm();
+    const Vec3 u = d / l;
+    const Vec3 dv = v.col(e.b) - v.col(e.a);
+    const double along = u.dot(dv);
+    const Vec3 k = (b * EA / e.rest) * (std::max(0.0, 1.0 - e.rest / l) * (dv - along * u) + along * u);
+    f.col(e.a) += k;
+    f.col(e.b) -= k;
+  }
+  if (EI == 0.0) return;
+  for (const Hinge& h : m_hinges) {
+    const HingeGeometry g = geometry(x.col(h.a), x.col(h.b), x.col(h.c), h.e_rest, h.f_rest);
+    if (h.psi_rest > 0.0 && g.psi < kFlat) continue;
+    const Vec3 de = v.col(h.b) - v.col(h.a), dfv = v.col(h.c) - v.col(h.b);
+    const Vec3 dkappa = kappa_differential(g, de, dfv);
+    auto [ge, gf] = phi_gradient(g, dkappa);  // J^T J v
+    if (h.psi_rest > 0.0) {
+      const double c = std::max(0.0, 1.0 - h.psi_rest / g.psi);
+      const double dc = h.psi_rest * g.kappa.dot(dkappa) / (g.psi * g.psi * g.psi);
+      const auto [pe, pf] = phi_gradient(g, g.kappa);
+      ge = c * ge + dc * pe;
+      gf = c * gf + dc * pf;
+    }
+    const double scale = b * 2.0 * EI / (h.e_rest + h.f_rest);
+    f.col(h.a) += scale * ge;
+    f.col(h.b) += scale * (gf - ge);
+    f.col(h.c) -= scale * gf;
+  }
 }
 
 // At rest, per edge x^T K x <= EA / |ebar| |de|^2 <= EA / |ebar| (1/m_a + 1/m_b) |x|_M^2; per hinge

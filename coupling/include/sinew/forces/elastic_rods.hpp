@@ -31,6 +31,9 @@ struct ElasticRodsSettings {
   double stretch_stiffness = 1.0;   ///< EA [N]
   double bending_stiffness = 1e-4;  ///< EI [N m^2]
   double beta = 0.0;                ///< axial strain-rate damping time [s]
+  /// Offer a definite differential (stretching's clamped, bending's Gauss-Newton part), so that
+  /// StepSettings::implicit_elasticity (or the automatic scheme) treats the fibers implicitly.
+  bool implicit = false;
 };
 
 class ElasticRods final : public Force {
@@ -49,6 +52,7 @@ class ElasticRods final : public Force {
   void add_elastic_differentials(const Vectors3& dx, Vectors3& df) const override;
   void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
   bool has_damping() const override { return m_settings.beta > 0.0; }
+  bool has_definite_differentials() const override { return m_settings.implicit; }
   void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
   double stable_dt(const VectorXd& m_eff) const override;
 
