@@ -11,7 +11,10 @@
 
 #include <Eigen/Dense>
 
+#include <algorithm>
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <memory>
 #include <vector>
 
@@ -298,6 +301,91 @@ TEST(ElasticRods, ABreakRemovesExactlyItsTerms) {
   ASSERT_EQ(whole.fibers().size(), 2u);
   EXPECT_EQ(whole.fibers()[1], (std::vector<Index>{6, 7}));
   EXPECT_EQ(whole.break_stretched(pulled, 0.1), 0u);
+}
+
+}  // namespace
+}  // namespace sinew
+
+namespace sinew {
+namespace {
+
+double distance_to_polyline(const Vec3& p, const Vectors3& line) {
+  double best = kInfinity;
+  for (Index i = 0; i + 1 < line.cols(); ++i) {
+    const Vec3 a = line.col(i), d = line.col(i + 1) - a;
+    const double t = std::clamp((p - a).dot(d) / d.squaredNorm(), 0.0, 1.0);
+    best = std::min(best, (a + t * d - p).norm());
+  }
+  return best;
+}
+
+// Drawing (section 5, P20): a known 3D curve projected to the front view (x, y) and the side view
+// (z, y), each stroke sampled differently and drawn top down, is rebuilt at the spacing s: every
+// rebuilt point lies on the curve and every point of the curve near the rebuilt polyline, within s/2
+// (Hausdorff), with segments s long to 2%.
+TEST(FiberDrawing, TwoOrthogonalStrokesRebuildTheCurve) {
+  const auto curve = [](double y) { return Vec3(0.05 * std::sin(12.0 * y), y, 0.03 * std::cos(20.0 * y)); };
+  Eigen::Matrix2Xd front(2, 40), side(2, 57);
+  for (Index i = 0; i < front.cols(); ++i) {
+    const Vec3 p = curve(0.3 * (1.0 - double(i) / 39.0));
+    front.col(i) = Eigen::Vector2d(p.x(), p.y());
+  }
+  for (Index i = 0; i < side.cols(); ++i) {
+    const Vec3 p = curve(0.3 * (1.0 - double(i) / 56.0));
+    side.col(i) = Eigen::Vector2d(p.z(), p.y());
+  }
+  const double s = 0.006;
+  const Vectors3 fiber = fiber_from_strokes(front, side, s);
+  Vectors3 truth(3, 3001);
+  for (Index i = 0; i < truth.cols(); ++i) truth.col(i) = curve(0.3 * (1.0 - double(i) / 3000.0));
+  double hausdorff = 0.0;
+  for (Index i = 0; i < fiber.cols(); ++i) hausdorff = std::max(hausdorff, distance_to_polyline(fiber.col(i), truth));
+  for (Index i = 0; i < truth.cols(); ++i) hausdorff = std::max(hausdorff, distance_to_polyline(truth.col(i), fiber));
+  EXPECT_LT(hausdorff, 0.5 * s);
+  EXPECT_GT(fiber(1, 0), fiber(1, fiber.cols() - 1)) << "drawn top down";
+  for (Index i = 0; i + 1 < fiber.cols(); ++i) EXPECT_NEAR((fiber.col(i + 1) - fiber.col(i)).norm(), s, 0.02 * s) << i;
+  // A stroke that turns back along the shared axis, and strokes that share no height, are named.
+  Eigen::Matrix2Xd back = front;
+  back(1, 20) = back(1, 10);
+  try {
+    fiber_from_strokes(back, side, s);
+    ADD_FAILURE() << "accepted a stroke turning back";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("front stroke turns back along y at its point"), std::string::npos)
+        << e.what();
+  }
+  Eigen::Matrix2Xd high = side;
+  high.row(1).array() += 1.0;
+  EXPECT_THROW(fiber_from_strokes(front, high, s), Error);
+}
+
+// The plain file: fibers and their points, comments and blank lines skipped; a malformed line, a
+// point before any fiber, a one-point fiber and a missing file are named.
+TEST(FiberDrawing, FiberFilesReadBackAndBadOnesAreNamed) {
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / "sinew_fiber_files";
+  std::filesystem::create_directories(dir);
+  const auto write = [&](const char* name, const char* text) {
+    std::ofstream(dir / name) << text;
+    return (dir / name).string();
+  };
+  const std::vector<Vectors3> fibers =
+      read_fibers(write("good.txt", "# two fibers\nfiber\n0 0 0\n0 1 0  # up\n\nfiber\n1 0 0\n1 0 1\n1 0 2\n"));
+  ASSERT_EQ(fibers.size(), 2u);
+  EXPECT_EQ(fibers[1].cols(), 3);
+  EXPECT_EQ(Vec3(fibers[0].col(1)), Vec3(0, 1, 0));
+  const auto says = [&](const std::string& path, const std::string& text) {
+    try {
+      read_fibers(path);
+      ADD_FAILURE() << "accepted " << path;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(text), std::string::npos) << e.what();
+    }
+  };
+  says(write("bad.txt", "fiber\n0 0 0\n0 zero 0\n"), "line 3: expected 'fiber' or three finite numbers");
+  says(write("early.txt", "0 0 0\nfiber\n"), "line 1: a point before the first 'fiber'");
+  says(write("short.txt", "fiber\n0 0 0\nfiber\n0 0 0\n1 1 1\n"), "the fiber started on line 1 has 1 points");
+  says((dir / "missing.txt").string(), "cannot read");
+  std::filesystem::remove_all(dir);
 }
 
 }  // namespace

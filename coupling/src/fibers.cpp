@@ -1,10 +1,13 @@
 // Fibers embedded in a meshfree matrix: see the header.
 #include "sinew/fibers.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <fstream>
 #include <memory>
 #include <numbers>
 #include <set>
+#include <sstream>
 
 namespace sinew {
 
@@ -68,6 +71,119 @@ EmbeddedFibers embed_fibers(System& system, MeshfreeCorotated& matrix, double h,
   if (lambda > 0.0)
     for (const Index i : carriers) matrix.set_volume_fraction(i, 1.0 - lambda);
   return out;
+}
+
+namespace {
+
+// x at height y along a stroke monotone in y (2 x n: rows x, y), linearly between its points.
+double along_height(const Eigen::Matrix2Xd& stroke, double y) {
+  const bool rising = stroke(1, stroke.cols() - 1) > stroke(1, 0);
+  Index lo = 0, hi = stroke.cols() - 1;
+  while (hi - lo > 1) {  // bisection on the monotone heights
+    const Index mid = (lo + hi) / 2;
+    if ((stroke(1, mid) <= y) == rising) lo = mid;
+    else hi = mid;
+  }
+  const double y0 = stroke(1, lo), y1 = stroke(1, hi);
+  const double t = y1 == y0 ? 0.0 : std::clamp((y - y0) / (y1 - y0), 0.0, 1.0);
+  return stroke(0, lo) + t * (stroke(0, hi) - stroke(0, lo));
+}
+
+void check_stroke(const Eigen::Matrix2Xd& stroke, const char* view) {
+  if (stroke.cols() < 2)
+    fail("fiber_from_strokes: the ", view, " stroke has ", stroke.cols(), " points, expected 2 or more");
+  if (!stroke.allFinite()) fail("fiber_from_strokes: the ", view, " stroke has a non-finite point");
+  const double direction = stroke(1, stroke.cols() - 1) - stroke(1, 0);
+  if (direction == 0.0) fail("fiber_from_strokes: the ", view, " stroke does not move along the shared axis y");
+  for (Index i = 1; i < stroke.cols(); ++i)
+    if ((stroke(1, i) - stroke(1, i - 1)) * direction < 0.0)
+      fail("fiber_from_strokes: the ", view, " stroke turns back along y at its point ", i,
+           ": a stroke must run monotonically along the axis the views share");
+}
+
+}  // namespace
+
+Vectors3 fiber_from_strokes(const Eigen::Matrix2Xd& front, const Eigen::Matrix2Xd& side, double spacing) {
+  if (!(std::isfinite(spacing) && spacing > 0.0)) fail("fiber_from_strokes: spacing ", spacing, " must be positive");
+  check_stroke(front, "front");
+  check_stroke(side, "side");
+  const auto range = [](const Eigen::Matrix2Xd& s) {
+    return std::pair{std::min(s(1, 0), s(1, s.cols() - 1)), std::max(s(1, 0), s(1, s.cols() - 1))};
+  };
+  const auto [f0, f1] = range(front);
+  const auto [s0, s1] = range(side);
+  const double y0 = std::max(f0, s0), y1 = std::min(f1, s1);
+  if (!(y1 > y0))
+    fail("fiber_from_strokes: the strokes share no height (front ", f0, "..", f1, ", side ", s0, "..", s1, ")");
+  // Densely along y (a hundredth of the spacing or finer, per stroke point), in the front stroke's
+  // direction, then by arc length in 3D.
+  const bool down = front(1, front.cols() - 1) < front(1, 0);
+  const Index dense = std::max<Index>(
+      {Index(2), 4 * (front.cols() + side.cols()), static_cast<Index>(std::ceil(100.0 * (y1 - y0) / spacing))});
+  Vectors3 path(3, dense);
+  for (Index i = 0; i < dense; ++i) {
+    const double t = double(i) / double(dense - 1);
+    const double y = down ? y1 - t * (y1 - y0) : y0 + t * (y1 - y0);
+    path.col(i) = Vec3(along_height(front, y), y, along_height(side, y));
+  }
+  std::vector<double> arc(static_cast<std::size_t>(dense), 0.0);
+  for (Index i = 1; i < dense; ++i)
+    arc[static_cast<std::size_t>(i)] = arc[static_cast<std::size_t>(i) - 1] + (path.col(i) - path.col(i - 1)).norm();
+  const double length = arc.back();
+  const Index segments = std::max<Index>(1, static_cast<Index>(std::lround(length / spacing)));
+  Vectors3 out(3, segments + 1);
+  Index at = 0;
+  for (Index k = 0; k <= segments; ++k) {
+    const double target = length * double(k) / double(segments);
+    while (at + 2 < dense && arc[static_cast<std::size_t>(at) + 1] < target) ++at;
+    const double a = arc[static_cast<std::size_t>(at)], b = arc[static_cast<std::size_t>(at) + 1];
+    const double t = b > a ? std::clamp((target - a) / (b - a), 0.0, 1.0) : 0.0;
+    out.col(k) = path.col(at) + t * (path.col(at + 1) - path.col(at));
+  }
+  return out;
+}
+
+std::vector<Vectors3> read_fibers(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) fail("read_fibers: cannot read '", path, "'");
+  std::vector<Vectors3> fibers;
+  std::vector<Vec3> points;
+  bool open = false;
+  int started = 0;
+  const auto close = [&](int line) {
+    if (!open) return;
+    if (points.size() < 2)
+      fail("read_fibers: '", path, "' line ", line, ": the fiber started on line ", started, " has ", points.size(),
+           " points, expected 2 or more");
+    Vectors3 fiber(3, static_cast<Index>(points.size()));
+    for (std::size_t i = 0; i < points.size(); ++i) fiber.col(static_cast<Index>(i)) = points[i];
+    fibers.push_back(fiber);
+    points.clear();
+  };
+  std::string text;
+  int line = 0;
+  while (std::getline(in, text)) {
+    ++line;
+    const std::string content = text.substr(0, text.find('#'));
+    std::istringstream words(content);
+    std::string first;
+    if (!(words >> first)) continue;
+    if (first == "fiber") {
+      close(line);
+      open = true;
+      started = line;
+      continue;
+    }
+    std::istringstream numbers(content);
+    Vec3 p;
+    std::string extra;
+    if (!(numbers >> p.x() >> p.y() >> p.z()) || (numbers >> extra) || !p.allFinite())
+      fail("read_fibers: '", path, "' line ", line, ": expected 'fiber' or three finite numbers, got '", text, "'");
+    if (!open) fail("read_fibers: '", path, "' line ", line, ": a point before the first 'fiber'");
+    points.push_back(p);
+  }
+  close(line + 1);
+  return fibers;
 }
 
 }  // namespace sinew

@@ -18,6 +18,7 @@
 #include "sinew/forces/meshfree_corotated.hpp"
 #include "sinew/system.hpp"
 
+#include <string>
 #include <vector>
 
 namespace sinew {
@@ -44,5 +45,20 @@ struct EmbeddedFibers {
 /// particles' volume fractions. Throws sinew::Error naming a bad setting or a non-finite point.
 EmbeddedFibers embed_fibers(System& system, MeshfreeCorotated& matrix, double h, const std::vector<Vectors3>& polylines,
                             const FiberSettings& settings);
+
+/// Drawing a fiber (section 5): one stroke in the front view (x, y) and one in the side view (z, y),
+/// sharing the vertical axis y, make the 3D polyline (x(y), y, z(y)) over the heights both strokes
+/// cover, resampled by arc length at `spacing` (the material particles' spacing keeps the fiber as
+/// fine as the matrix that carries it). Each stroke is 2 x n, its points in drawing order, and must
+/// run monotonically along y (a stroke that turns back has no single x at a height): otherwise, or
+/// for strokes that share no height, fewer than two points, non-finite points or a bad spacing,
+/// sinew::Error names the problem. The resampled ends are the ends of the shared height range.
+Vectors3 fiber_from_strokes(const Eigen::Matrix2Xd& front, const Eigen::Matrix2Xd& side, double spacing);
+
+/// Reads fibers from a plain text file for scripts and tests: a line `fiber` starts a polyline, every
+/// other non-blank line holds three numbers, a point x y z of the current polyline; `#` starts a
+/// comment. Throws sinew::Error naming the file and the line of anything else, a point before the
+/// first `fiber`, or a polyline of fewer than two points; and a file that cannot be read.
+std::vector<Vectors3> read_fibers(const std::string& path);
 
 }  // namespace sinew
