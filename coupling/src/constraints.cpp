@@ -24,8 +24,8 @@ void Constraints::reset(const Unknowns& unknowns) {
 // become groups. The particle arrays are reset to -1 / 0 afterwards for the next step (no allocation
 // while every constraint is alone).
 namespace {
-// Below this fraction of a collision group's largest singular value, a direction of its rows is held
-// at zero velocity rather than driven to its target (prepare_collisions).
+// Below this fraction of a collision group's largest singular value, a direction of its rows is
+// driven to its target only up to twice the targets' size (prepare_collisions).
 constexpr double kWeakRow = 1e-2;
 }  // namespace
 
@@ -91,14 +91,19 @@ void Constraints::prepare_collisions() {
       while (rank < sigma.size() && sigma[rank] > 1e-10 * sigma[0]) ++rank;
       group.basis = svd.matrixV().leftCols(rank);
       // Nearly dependent rows (a node's own contact and an edge contact that holds it with most of
-      // its weight, their normals alike) would meet slightly different targets only by velocities of
-      // (their difference) / sigma, hundreds of metres a second: a direction the rows hold less than
-      // a hundredth as firmly as their strongest is held still instead (it stays in the basis, so the
-      // projection keeps it at zero) and carries no multiplier.
+      // its weight, their normals alike) meet slightly different targets only by velocities of
+      // (their difference) / sigma, hundreds of metres a second. Along a direction the rows hold less
+      // than a hundredth as firmly as their strongest, the least-norm velocity is kept only up to
+      // twice the targets' size (consistent targets, such as a surface moving along its normal, give
+      // about that), and that direction carries no multiplier (its reaction is not resolved).
       VectorXd inverse = VectorXd::Zero(rank);
       for (Index i = 0; i < rank; ++i)
         if (sigma[i] >= kWeakRow * sigma[0]) inverse[i] = 1.0 / sigma[i];
-      const VectorXd coefficients = (svd.matrixU().leftCols(rank).transpose() * t).cwiseProduct(inverse);
+      VectorXd coefficients = svd.matrixU().leftCols(rank).transpose() * t;
+      const double cap = 2.0 * t.norm();
+      for (Index i = 0; i < rank; ++i)
+        coefficients[i] =
+            inverse[i] > 0.0 ? coefficients[i] * inverse[i] : std::clamp(coefficients[i] / sigma[i], -cap, cap);
       group.particular = group.basis * coefficients;
       group.rows = rows[g];
       group.multipliers = svd.matrixU().leftCols(rank) * inverse.asDiagonal();

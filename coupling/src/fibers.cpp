@@ -20,43 +20,57 @@ EmbeddedFibers embed_fibers(System& system, MeshfreeCorotated& matrix, double h,
   const Vectors3& x = system.particles().x;  // the material at rest
   EmbeddedFibers out;
   std::set<Index> carriers;
+  // A piece's points wait until it closes: a piece of one point (a stray point between two outside
+  // the material) adds no particle, binding or carrier.
+  struct Point {
+    Vec3 at;
+    std::vector<Index> parents;
+    std::vector<double> weights;
+  };
+  std::vector<Point> piece;
+  const auto close = [&] {
+    if (piece.size() >= 2) {
+      std::vector<Index> fiber;
+      for (Point& point : piece) {
+        const Index sp = system.add_particle(point.at, Vec3::Zero(), 0.0);
+        system.bind_linear(sp, point.parents, point.weights);
+        system.set_collision_filter(sp, kDefaultCollisionGroup, 0);
+        carriers.insert(point.parents.begin(), point.parents.end());
+        fiber.push_back(sp);
+        out.parents.push_back(std::move(point.parents));
+        out.weights.push_back(std::move(point.weights));
+      }
+      out.fibers.push_back(std::move(fiber));
+    } else {
+      out.dropped += static_cast<Index>(piece.size());
+    }
+    piece.clear();
+  };
   for (std::size_t k = 0; k < polylines.size(); ++k) {
-    std::vector<Index> piece;
-    const auto close = [&] {
-      if (piece.size() >= 2) out.fibers.push_back(piece);
-      piece.clear();
-    };
     for (Index p = 0; p < polylines[k].cols(); ++p) {
       const Vec3 X = polylines[k].col(p);
       if (!X.allFinite()) fail("embed_fibers: polyline ", k, " point ", p, " is not finite");
-      std::vector<Index> parents;
-      std::vector<double> weights;
+      Point point;
       double total = 0.0;
       for (const Index i : material) {
         const double q = (x.col(i) - X).norm() / h;
         if (q >= 1.0) continue;
         const double w = (1.0 + 3.0 * q) * std::pow(1.0 - q, 3);  // Lucy's kernel; its scale cancels
-        parents.push_back(i);
-        weights.push_back(w);
+        point.parents.push_back(i);
+        point.weights.push_back(w);
         total += w;
       }
-      if (parents.empty()) {  // outside the material
+      if (point.parents.empty()) {  // outside the material
         ++out.dropped;
         close();
         continue;
       }
-      Vec3 at = Vec3::Zero();
-      for (std::size_t a = 0; a < parents.size(); ++a) {
-        weights[a] /= total;
-        at += weights[a] * x.col(parents[a]);
-        carriers.insert(parents[a]);
+      point.at = Vec3::Zero();
+      for (std::size_t a = 0; a < point.parents.size(); ++a) {
+        point.weights[a] /= total;
+        point.at += point.weights[a] * x.col(point.parents[a]);
       }
-      const Index sp = system.add_particle(at, Vec3::Zero(), 0.0);
-      system.bind_linear(sp, parents, weights);
-      system.set_collision_filter(sp, kDefaultCollisionGroup, 0);
-      piece.push_back(sp);
-      out.parents.push_back(std::move(parents));
-      out.weights.push_back(std::move(weights));
+      piece.push_back(std::move(point));
     }
     close();
   }
@@ -117,6 +131,10 @@ Vectors3 fiber_from_strokes(const Eigen::Matrix2Xd& front, const Eigen::Matrix2X
     fail("fiber_from_strokes: the strokes share no height (front ", f0, "..", f1, ", side ", s0, "..", s1, ")");
   // Densely along y (a hundredth of the spacing or finer, per stroke point), in the front stroke's
   // direction, then by arc length in 3D.
+  constexpr double kMostPoints = 1e6;  // a fiber of more points than this is a spacing mistake
+  if ((y1 - y0) / spacing > kMostPoints)
+    fail("fiber_from_strokes: spacing ", spacing, " over a height of ", y1 - y0, " would make more than ", kMostPoints,
+         " points");
   const bool down = front(1, front.cols() - 1) < front(1, 0);
   const Index dense = std::max<Index>(
       {Index(2), 4 * (front.cols() + side.cols()), static_cast<Index>(std::ceil(100.0 * (y1 - y0) / spacing))});
@@ -130,6 +148,9 @@ Vectors3 fiber_from_strokes(const Eigen::Matrix2Xd& front, const Eigen::Matrix2X
   for (Index i = 1; i < dense; ++i)
     arc[static_cast<std::size_t>(i)] = arc[static_cast<std::size_t>(i) - 1] + (path.col(i) - path.col(i - 1)).norm();
   const double length = arc.back();
+  if (length / spacing > kMostPoints)
+    fail("fiber_from_strokes: spacing ", spacing, " along a fiber ", length, " long would make more than ", kMostPoints,
+         " points");
   const Index segments = std::max<Index>(1, static_cast<Index>(std::lround(length / spacing)));
   Vectors3 out(3, segments + 1);
   Index at = 0;

@@ -34,7 +34,7 @@ struct FiberSettings {
 struct EmbeddedFibers {
   std::vector<std::vector<Index>> fibers;  ///< structure particles of each (possibly split) fiber
   ElasticRods* force = nullptr;            ///< null when every point fell outside the material
-  Index dropped = 0;                       ///< drawn points outside the material
+  Index dropped = 0;                       ///< drawn points outside the material, and stray single points between such
   /// Per structure particle (the fibers' particles in order): its material parents and weights.
   std::vector<std::vector<Index>> parents;
   std::vector<std::vector<double>> weights;

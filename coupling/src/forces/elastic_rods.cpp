@@ -126,10 +126,14 @@ void ElasticRods::break_fiber(std::size_t k, std::size_t edge) {
   if (edge + 1 >= p.size()) fail(kName, ": break: fiber ", k, " has no edge ", edge, " (", p.size() - 1, " edges)");
   std::vector<Index> tail(p.begin() + static_cast<std::ptrdiff_t>(edge) + 1, p.end());
   p.resize(edge + 1);
-  // A piece of one particle has no terms left: it is dropped from the list.
-  if (p.size() < 2) m_fibers.erase(m_fibers.begin() + static_cast<std::ptrdiff_t>(k));
-  if (tail.size() >= 2)
-    m_fibers.insert(m_fibers.begin() + static_cast<std::ptrdiff_t>(std::min(k + 1, m_fibers.size())), tail);
+  // A piece of one particle has no terms left: it is dropped from the list, and the tail takes the
+  // fiber's place (else it follows the head).
+  std::size_t at = k + 1;
+  if (p.size() < 2) {
+    m_fibers.erase(m_fibers.begin() + static_cast<std::ptrdiff_t>(k));
+    at = k;
+  }
+  if (tail.size() >= 2) m_fibers.insert(m_fibers.begin() + static_cast<std::ptrdiff_t>(at), tail);
   rebuild();
 }
 
@@ -148,7 +152,8 @@ std::size_t ElasticRods::break_stretched(const Vectors3& x, double strain) {
     }
     break_fiber(k, at);
     ++broken;
-    // The head (edges before `at`, none stretched) is done when it was kept; the tail comes next.
+    // The head (edges before `at`, none stretched) is done when it was kept; the tail is next: at
+    // k + 1, or at k when the head was dropped.
     if (at >= 1) ++k;
   }
   return broken;
@@ -297,10 +302,15 @@ void ElasticRods::add_implicit_products(const Vectors3& v, double b, Vectors3& f
 
 // At rest, per edge x^T K x <= EA / |ebar| |de|^2 <= EA / |ebar| (1/m_a + 1/m_b) |x|_M^2; per hinge
 // (straight) K = (2 EI / Lbar) J^T J with |dkappa| <= |de| / |ebar| + |df| / |fbar|, so
-// |dkappa|^2 <= 2 (|de|^2 / |ebar|^2 + |df|^2 / |fbar|^2) and |de|^2 <= 2 (|dx_a|^2 + |dx_b|^2);
-// a curved rest shape's hinge is given twice that. omega^2 is at most the largest sum over the
-// terms a particle is in (element_bound_stable_dt's argument).
+// |dkappa|^2 <= 2 (|de|^2 / |ebar|^2 + |df|^2 / |fbar|^2) and |de|^2 <= 2 (|dx_a|^2 + |dx_b|^2).
+// At a curved rest shape psi = 2 tan(phi / 2) changes (1 + psibar^2 / 4) times as fast with the
+// angle, so its hinge is given (1 + psibar^2 / 4)^2 times that, and twice again for the coupling of
+// the lengths to the turn. omega^2 is at most the largest sum over the terms a particle is in
+// (element_bound_stable_dt's argument).
 double ElasticRods::stable_dt(const VectorXd& m_eff) const {
+  Index span = 0;
+  for (const auto& fiber : m_fibers) span = std::max(span, *std::max_element(fiber.begin(), fiber.end()) + 1);
+  detail::check_mass_count(kName, m_eff, span);
   const auto inv = [&](Index i) { return detail::inverse_mass(m_eff[i]); };
   std::vector<double> sum(static_cast<std::size_t>(m_eff.size()), 0.0);
   for (const Edge& e : m_edges) {
@@ -309,7 +319,9 @@ double ElasticRods::stable_dt(const VectorXd& m_eff) const {
     sum[static_cast<std::size_t>(e.b)] += lambda;
   }
   for (const Hinge& h : m_hinges) {
-    const double scale = 2.0 * m_settings.bending_stiffness / (h.e_rest + h.f_rest) * (h.psi_rest > 0.0 ? 2.0 : 1.0);
+    const double curved = 1.0 + 0.25 * h.psi_rest * h.psi_rest;
+    const double scale =
+        2.0 * m_settings.bending_stiffness / (h.e_rest + h.f_rest) * (h.psi_rest > 0.0 ? 2.0 * curved * curved : 1.0);
     const double lambda =
         scale * 4.0 * ((inv(h.a) + inv(h.b)) / (h.e_rest * h.e_rest) + (inv(h.b) + inv(h.c)) / (h.f_rest * h.f_rest));
     for (const Index i : {h.a, h.b, h.c}) sum[static_cast<std::size_t>(i)] += lambda;

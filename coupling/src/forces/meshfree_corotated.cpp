@@ -82,7 +82,11 @@ MeshfreeCorotated::MeshfreeCorotated(std::vector<Index> particles, const Vectors
     for (std::size_t b = a + 1; b < count; ++b) {
       const Index j = static_cast<Index>(order[b]);
       if (m_rest(0, j) - m_rest(0, i) >= h) break;
-      if ((m_rest.col(j) - m_rest.col(i)).norm() < h) {
+      const double r = (m_rest.col(j) - m_rest.col(i)).norm();
+      if (r <= 1e-12 * h)
+        fail(kName, ": particles ", m_particles[static_cast<std::size_t>(i)], " and ",
+             m_particles[static_cast<std::size_t>(j)], " share a rest position");
+      if (r < h) {
         near[static_cast<std::size_t>(i)].push_back(j);
         near[static_cast<std::size_t>(j)].push_back(i);
       }
@@ -112,7 +116,7 @@ MeshfreeCorotated::MeshfreeCorotated(std::vector<Index> particles, const Vectors
     }
     const Eigen::JacobiSVD<Mat3> svd(M);
     const Vec3 s = svd.singularValues();
-    if (!(s(0) > 0.0) || s(2) < kSingularMoment * s(0))
+    if (!M.allFinite() || svd.info() != Eigen::Success || !(s(0) > 0.0) || s(2) < kSingularMoment * s(0))
       fail(kName, ": particle ", m_particles[k], " has ", m_offset[k + 1] - m_offset[k], " neighbours within h = ", h,
            " that do not span space (moment matrix singular values ", s.transpose(),
            "): a larger support radius or more particles around it");
@@ -230,23 +234,26 @@ void MeshfreeCorotated::add_implicit_products(const Vectors3& v, double b, Vecto
 void MeshfreeCorotated::add_hourglass(const Vectors3& x, double scale, Vectors3& f) const {
   const double c = scale * m_settings.hourglass * m_mu;
   if (c == 0.0) return;
-  std::vector<Vec3> b;
   for (std::size_t k = 0; k < m_particles.size(); ++k) {
     const Mat3 F = gradient_of(x, k);
     const Vec3 xk = x.col(m_particles[k]);
-    b.assign(m_offset[k + 1] - m_offset[k], Vec3::Zero());
+    const double ck = c * m_fraction[k];
+    // b_kj = ck w_kj r_kj, recomputed in the second pass rather than stored (no allocation here:
+    // this runs in every product of the solves).
+    const auto b = [&](std::size_t e, const Vec3& X) {
+      return Vec3(ck * m_hg_weight[e] *
+                  (Vec3(x.col(m_particles[static_cast<std::size_t>(m_neighbours[e])])) - xk - F * X));
+    };
     Mat3 B = Mat3::Zero();
     for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
-      const auto j = static_cast<std::size_t>(m_neighbours[e]);
-      const Vec3 X = m_rest.col(static_cast<Index>(j)) - m_rest.col(static_cast<Index>(k));
-      const Vec3 r = Vec3(x.col(m_particles[j])) - xk - F * X;
-      b[e - m_offset[k]] = c * m_fraction[k] * m_hg_weight[e] * r;
-      B += b[e - m_offset[k]] * X.transpose();
+      const Vec3 X = m_rest.col(m_neighbours[e]) - m_rest.col(static_cast<Index>(k));
+      B += b(e, X) * X.transpose();
     }
     Vec3 sum = Vec3::Zero();
     for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
       const auto j = static_cast<std::size_t>(m_neighbours[e]);
-      const Vec3 t = -b[e - m_offset[k]] + m_volume[j] * (B * m_g[e]);
+      const Vec3 X = m_rest.col(m_neighbours[e]) - m_rest.col(static_cast<Index>(k));
+      const Vec3 t = -b(e, X) + m_volume[j] * (B * m_g[e]);
       f.col(m_particles[j]) += t;
       sum += t;
     }
@@ -271,14 +278,16 @@ double MeshfreeCorotated::hourglass_energy(const Vectors3& x) const {
 }
 
 // Per stencil k (the particle and its neighbours), as element_bound_stable_dt: at rest
-//   dx^T K_k dx <= V_k (2 mu + lambda+) |dF_k|^2 + alpha mu sum_j w_kj |dr_kj|^2,
+//   dx^T K_k dx <= V_k (2 mu + 3 lambda+) |dF_k|^2 + alpha mu sum_j w_kj |dr_kj|^2
+// (2 mu |sym dF|^2 + lambda tr(dF)^2, and tr(dF)^2 <= 3 |dF|^2),
 // and |sum_a c_a dx_a|^2 <= (sum_a c_a^2 / m_a) |dx|_M^2 (Cauchy-Schwarz) for each linear map (dF_k's
 // columns and each r_kj). omega^2 is at most the largest sum over the stencils a particle is in.
 double MeshfreeCorotated::stable_dt(const VectorXd& m_eff) const {
+  detail::check_mass_count(kName, m_eff, *std::max_element(m_particles.begin(), m_particles.end()) + 1);
   const std::size_t count = m_particles.size();
   std::vector<double> lambda_k(count, 0.0);
   const auto inv = [&](std::size_t a) { return detail::inverse_mass(m_eff[m_particles[a]]); };
-  const double modulus = 2.0 * m_mu + std::max(m_lambda, 0.0);
+  const double modulus = 2.0 * m_mu + 3.0 * std::max(m_lambda, 0.0);
   const double c = m_settings.hourglass * m_mu;
   for (std::size_t k = 0; k < count; ++k) {
     Vec3 self = Vec3::Zero();

@@ -142,12 +142,12 @@ class BulletCollisions final : public CollisionSource {
   /// features_of keeps the hulls of at most this many shapes (then starts again).
   static constexpr std::size_t kMaxFeatureShapes = 256;
   const Features& features_of(const btPolyhedralConvexShape* shape) const;
-  /// Pushes the surface points `points` (weights summing to 1, -1 for none) of a contact with object o
-  /// at world point `at` along n (from the body towards the surface) by `gap`, stops their approach
-  /// relative to the body's surface there with friction, and gives the body the opposite impulse.
   /// Takes back particle i's tangential displacement relative to prescribed object o, up to the
   /// friction coefficient times `push` (the normal displacement the contact imposed along n).
   void hold_by_friction(CollisionContext& c, Index i, std::size_t o, const Vec3& n, double push);
+  /// Pushes the surface points `points` (weights summing to 1, -1 for none) of a contact with object o
+  /// at world point `at` along n (from the body towards the surface) by `gap`, stops their approach
+  /// relative to the body's surface there with friction, and gives the body the opposite impulse.
   void respond_to_body(CollisionContext& c, int o, const std::array<Index, 3>& points,
                        const std::array<double, 3>& weights, const Vec3& at, const Vec3& n, double gap);
   BulletCollisions(const BulletCollisions&) = delete;  // the tree owns its nodes
