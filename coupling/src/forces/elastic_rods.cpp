@@ -27,10 +27,7 @@ constexpr double kFlat = 1e-12;
 // A rest turning below this (|kappa| ~ the angle) is straight: round-off of a collinear rest shape.
 constexpr double kStraight = 1e-10;
 
-struct HingeGeometry {
-  Vec3 e, f, n, kappa;
-  double D = 0.0, psi = 0.0;
-};
+using HingeGeometry = ElasticRods::HingeState;
 
 HingeGeometry geometry(const Vec3& xa, const Vec3& xb, const Vec3& xc, double e_rest, double f_rest) {
   HingeGeometry g;
@@ -95,7 +92,7 @@ ElasticRods::ElasticRods(std::vector<std::vector<Index>> fibers, const Vectors3&
   }
   m_rest = rest_x;
   rebuild();
-  m_x = rest_x;
+  update_position_state(rest_x);
 }
 
 // The terms of every fiber from the rest positions: the same computation for the terms a break
@@ -118,6 +115,7 @@ void ElasticRods::rebuild() {
     m_edge_offset.push_back(m_edges.size());
     m_hinge_offset.push_back(m_hinges.size());
   }
+  if (m_x.cols() > 0) update_position_state(m_x);  // the remaining terms' states at the last positions
 }
 
 void ElasticRods::break_fiber(std::size_t k, std::size_t edge) {
@@ -213,45 +211,81 @@ void ElasticRods::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
 }
 
 void ElasticRods::add_elastic_differentials(const Vectors3& dx, Vectors3& df) const {
-  const double EA = m_settings.stretch_stiffness, EI = m_settings.bending_stiffness;
-  const Vectors3& x = m_x;
-  for (const Edge& e : m_edges) {
-    const Vec3 d = x.col(e.b) - x.col(e.a);
-    const double l = d.norm();
-    const Vec3 u = d / l;
+  add_edge_products(dx, 1.0, false, df);
+  add_hinge_products(dx, 1.0, true, df);
+}
+
+void ElasticRods::update_position_state(const Vectors3& x) {
+  m_x = x;
+  m_edge_direction.resize(m_edges.size());
+  m_edge_length.resize(m_edges.size());
+  for (std::size_t i = 0; i < m_edges.size(); ++i) {
+    const Vec3 d = x.col(m_edges[i].b) - x.col(m_edges[i].a);
+    m_edge_length[i] = d.norm();
+    m_edge_direction[i] = d / m_edge_length[i];
+  }
+  m_hinge_state.resize(m_hinges.size());
+  for (std::size_t i = 0; i < m_hinges.size(); ++i) {
+    const Hinge& h = m_hinges[i];
+    m_hinge_state[i] = geometry(x.col(h.a), x.col(h.b), x.col(h.c), h.e_rest, h.f_rest);
+  }
+}
+
+// out += scale K dx over the edges at the cached state: the exact differential, or with `clamped`
+// the transverse term only where stretched (definite).
+void ElasticRods::add_edge_products(const Vectors3& dx, double scale, bool clamped, Vectors3& out) const {
+  const double EA = m_settings.stretch_stiffness;
+  for (std::size_t i = 0; i < m_edges.size(); ++i) {
+    const Edge& e = m_edges[i];
+    const Vec3& u = m_edge_direction[i];
     const Vec3 dd = dx.col(e.b) - dx.col(e.a);
     const double along = u.dot(dd);
-    const Vec3 dgrad = (EA / e.rest) * ((1.0 - e.rest / l) * (dd - along * u) + along * u);
-    df.col(e.a) += dgrad;
-    df.col(e.b) -= dgrad;
+    const double transverse = 1.0 - e.rest / m_edge_length[i];
+    const Vec3 k =
+        (scale * EA / e.rest) * ((clamped ? std::max(0.0, transverse) : transverse) * (dd - along * u) + along * u);
+    out.col(e.a) += k;
+    out.col(e.b) -= k;
   }
+}
+
+// out += scale K dx over the hinges at the cached state: with `exact` the differential
+//   c (H_phi|kappa + J^T J) + psibar (kappa . J dx) / psi^3 J^T kappa,
+// else its Gauss-Newton part with c clamped at 0 (definite; see add_implicit_products).
+void ElasticRods::add_hinge_products(const Vectors3& dx, double scale, bool exact, Vectors3& out) const {
+  const double EI = m_settings.bending_stiffness;
   if (EI == 0.0) return;
-  for (const Hinge& h : m_hinges) {
-    const HingeGeometry g = geometry(x.col(h.a), x.col(h.b), x.col(h.c), h.e_rest, h.f_rest);
+  for (std::size_t i = 0; i < m_hinges.size(); ++i) {
+    const Hinge& h = m_hinges[i];
+    const HingeGeometry& g = m_hinge_state[i];
     if (h.psi_rest > 0.0 && g.psi < kFlat) continue;
     const Vec3 de = dx.col(h.b) - dx.col(h.a), dfv = dx.col(h.c) - dx.col(h.b);
     const Vec3 dkappa = kappa_differential(g, de, dfv);
-    const auto [he, hf] = phi_hessian(g, g.kappa, de, dfv);
-    const auto [ke, kf] = phi_gradient(g, dkappa);
-    Vec3 ge = he + ke, gf = hf + kf;
+    auto [ge, gf] = phi_gradient(g, dkappa);  // J^T J dx
+    if (exact) {
+      const auto [he, hf] = phi_hessian(g, g.kappa, de, dfv);
+      ge += he;
+      gf += hf;
+    }
     if (h.psi_rest > 0.0) {
       const double c = 1.0 - h.psi_rest / g.psi;
       const double dc = h.psi_rest * g.kappa.dot(dkappa) / (g.psi * g.psi * g.psi);
       const auto [pe, pf] = phi_gradient(g, g.kappa);
-      ge = c * ge + dc * pe;
-      gf = c * gf + dc * pf;
+      const double kept = exact ? c : std::max(0.0, c);
+      ge = kept * ge + dc * pe;
+      gf = kept * gf + dc * pf;
     }
-    const double scale = 2.0 * EI / (h.e_rest + h.f_rest);
-    df.col(h.a) += scale * ge;
-    df.col(h.b) += scale * (gf - ge);
-    df.col(h.c) -= scale * gf;
+    const double k = scale * 2.0 * EI / (h.e_rest + h.f_rest);
+    out.col(h.a) += k * ge;
+    out.col(h.b) += k * (gf - ge);
+    out.col(h.c) -= k * gf;
   }
 }
 
 void ElasticRods::add_damping_forces(const Vectors3& v, Vectors3& f) const {
   if (m_settings.beta == 0.0) return;
-  for (const Edge& e : m_edges) {
-    const Vec3 u = (m_x.col(e.b) - m_x.col(e.a)).normalized();
+  for (std::size_t i = 0; i < m_edges.size(); ++i) {
+    const Edge& e = m_edges[i];
+    const Vec3& u = m_edge_direction[i];
     const double rate = u.dot(v.col(e.b) - v.col(e.a));
     const Vec3 force = (m_settings.beta * m_settings.stretch_stiffness / e.rest * rate) * u;
     f.col(e.a) += force;
@@ -267,37 +301,8 @@ void ElasticRods::add_damping_forces(const Vectors3& v, Vectors3& f) const {
 void ElasticRods::add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
   add_damping_forces(v, f);
   if (!m_settings.implicit || b == 0.0) return;
-  const double EA = m_settings.stretch_stiffness, EI = m_settings.bending_stiffness;
-  const Vectors3& x = m_x;
-  for (const Edge& e : m_edges) {
-    const Vec3 d = x.col(e.b) - x.col(e.a);
-    const double l = d.norm();
-    const Vec3 u = d / l;
-    const Vec3 dv = v.col(e.b) - v.col(e.a);
-    const double along = u.dot(dv);
-    const Vec3 k = (b * EA / e.rest) * (std::max(0.0, 1.0 - e.rest / l) * (dv - along * u) + along * u);
-    f.col(e.a) += k;
-    f.col(e.b) -= k;
-  }
-  if (EI == 0.0) return;
-  for (const Hinge& h : m_hinges) {
-    const HingeGeometry g = geometry(x.col(h.a), x.col(h.b), x.col(h.c), h.e_rest, h.f_rest);
-    if (h.psi_rest > 0.0 && g.psi < kFlat) continue;
-    const Vec3 de = v.col(h.b) - v.col(h.a), dfv = v.col(h.c) - v.col(h.b);
-    const Vec3 dkappa = kappa_differential(g, de, dfv);
-    auto [ge, gf] = phi_gradient(g, dkappa);  // J^T J v
-    if (h.psi_rest > 0.0) {
-      const double c = std::max(0.0, 1.0 - h.psi_rest / g.psi);
-      const double dc = h.psi_rest * g.kappa.dot(dkappa) / (g.psi * g.psi * g.psi);
-      const auto [pe, pf] = phi_gradient(g, g.kappa);
-      ge = c * ge + dc * pe;
-      gf = c * gf + dc * pf;
-    }
-    const double scale = b * 2.0 * EI / (h.e_rest + h.f_rest);
-    f.col(h.a) += scale * ge;
-    f.col(h.b) += scale * (gf - ge);
-    f.col(h.c) -= scale * gf;
-  }
+  add_edge_products(v, b, true, f);
+  add_hinge_products(v, b, false, f);
 }
 
 // At rest, per edge x^T K x <= EA / |ebar| |de|^2 <= EA / |ebar| (1/m_a + 1/m_b) |x|_M^2; per hinge

@@ -46,7 +46,7 @@ class ElasticRods final : public Force {
 
   std::string_view name() const override { return "elastic rods"; }
   void validate(Index particle_count) const override;
-  void update_position_state(const Vectors3& x) override { m_x = x; }
+  void update_position_state(const Vectors3& x) override;
   double potential_energy(const Vectors3& x) const override;
   void add_elastic_forces(const Vectors3& x, Vectors3& f) const override;
   void add_elastic_differentials(const Vectors3& dx, Vectors3& df) const override;
@@ -68,6 +68,12 @@ class ElasticRods final : public Force {
   /// the pieces; returns how many breaks.
   std::size_t break_stretched(const Vectors3& x, double strain);
 
+  /// A hinge's edges e, f, n = e x f, D = |ebar||fbar| + e . f, kappa = 2 n / D and psi = |kappa|.
+  struct HingeState {
+    Vec3 e, f, n, kappa;
+    double D = 0.0, psi = 0.0;
+  };
+
  private:
   struct Edge {
     Index a = -1, b = -1;
@@ -78,6 +84,8 @@ class ElasticRods final : public Force {
     double e_rest = 0.0, f_rest = 0.0, psi_rest = 0.0;
   };
   void rebuild();
+  void add_edge_products(const Vectors3& dx, double scale, bool clamped, Vectors3& out) const;
+  void add_hinge_products(const Vectors3& dx, double scale, bool exact, Vectors3& out) const;
   double edge_energy(const Edge& e, const Vectors3& x) const;
   double hinge_energy(const Hinge& h, const Vectors3& x) const;
 
@@ -87,7 +95,12 @@ class ElasticRods final : public Force {
   std::vector<Hinge> m_hinges;
   std::vector<std::size_t> m_edge_offset, m_hinge_offset;  // per fiber, into m_edges and m_hinges
   Vectors3 m_rest;                                         // the rest positions
-  Vectors3 m_x;                                            // the cached positions
+  // The state at the last positions (update_position_state; a break refreshes it for the terms left),
+  // which the differentials, products and damping of every solve iteration use.
+  Vectors3 m_x;
+  std::vector<Vec3> m_edge_direction;
+  std::vector<double> m_edge_length;
+  std::vector<HingeState> m_hinge_state;
 };
 
 }  // namespace sinew
