@@ -17,7 +17,9 @@ using test::random_vec3;
 using test::uniform;
 
 // A system with free parents and three dynamic rigid bodies, and bound points of every kind:
-// segment, triangle, tet, point cloud (k = 6) and rigid frame; one T-junction chain on top.
+// segment, triangle, tet, point cloud (k = 6) and rigid frame; one T-junction chain on top, and
+// massless points embedded among free particles and one body's frame points (mixed bindings, as a
+// fiber's structure particle where its matrix is bound to a body).
 struct BoundScene {
   System system{SystemSettings{Vec3::Zero(), true}};
   std::vector<Index> bound;
@@ -59,6 +61,12 @@ struct BoundScene {
     const std::array<Index, 2> chain{bound[0], 3};
     const std::array<double, 2> wc{0.5, 0.5};
     system.bind_linear(add_bound(0.15), chain, wc);
+    // bound[4 + 7 r + b]: the frame point of repetition r on body b.
+    for (int b = 0; b < 3; ++b) {
+      const std::array<Index, 4> mixed{bound[4 + b], bound[11 + b], Index(2 + b), Index(9 + b)};
+      const std::array<double, 4> wm{0.2, 0.15, 0.4, 0.25};
+      system.bind_linear(add_bound(0.0), mixed, wm);
+    }
     system.clamp_bound_rows();
   }
 };
@@ -94,6 +102,7 @@ TEST(HardBindings, ChainsAreFlattenedSoParentsAreNeverBound) {
   System& s = scene.system;
   s.finalize();
   const HardBindings& hard = s.hard_bindings();
+  EXPECT_EQ(hard.mixed().size(), 3);
   for (Index k = 0; k < hard.linear_count(); ++k) {
     double sum = 0.0;
     for (Index p : hard.linear_parents(k)) EXPECT_FALSE(hard.is_bound(p)) << "binding " << k;
@@ -101,7 +110,7 @@ TEST(HardBindings, ChainsAreFlattenedSoParentsAreNeverBound) {
     EXPECT_NEAR(sum, 1.0, 1e-14);
   }
   // The T-junction point is the midpoint of (segment point 0.3 x0 + 0.7 x5) and x3.
-  const Index t = scene.bound.back();
+  const Index t = scene.bound[scene.bound.size() - 4];
   const Vectors3& x = s.particles().x;
   const Vec3 expected = 0.5 * (0.3 * x.col(0) + 0.7 * x.col(5)) + 0.5 * x.col(3);
   EXPECT_NEAR((x.col(t) - expected).norm(), 0.0, 1e-14);
@@ -182,12 +191,16 @@ TEST(HardBindings, ImpulseChangesBoundVelocityByImpulseOverEffectiveMass) {
     const Vec3 before = s.particles().v.col(p);
     s.apply_impulse(p, j);
     const Vec3 dv = s.particles().v.col(p) - before;
-    if (!s.hard_bindings().on_rigid_frame(p)) {
+    const MixedBindings& mixed = s.hard_bindings().mixed();
+    bool on_frame = s.hard_bindings().on_rigid_frame(p);
+    for (Index k = 0; k < mixed.size(); ++k) on_frame = on_frame || mixed.particle(k) == p;
+    if (!on_frame) {
       // eq. 4: a linear bound point's velocity changes by j / m_e exactly.
       EXPECT_NEAR((dv - j / s.effective_mass(p)).norm(), 0.0, 1e-12 * dv.norm()) << "particle " << p;
     } else {
       // A rigid frame responds through its impulse matrix K: along j the effective mass is
-      // 1 / (j^ K j^), and the isotropic bound m_e = 1/lambda_max(K) bounds the response.
+      // 1 / (j^ K j^), and the isotropic bound m_e = 1/lambda_max(K) bounds the response (a mixed
+      // point: sum_F w_i^2 / m_i plus w_B^2 K, the same way).
       const Vec3 n = j.normalized();
       EXPECT_NEAR(n.dot(dv), j.norm() / s.effective_mass_along(p, n), 1e-12 * dv.norm()) << "particle " << p;
       EXPECT_LE(dv.norm(), j.norm() / s.effective_mass(p) * (1 + 1e-12));

@@ -77,6 +77,10 @@ void HardBindings::rebuild_lookup(Index particle_count) {
 }
 
 void HardBindings::flatten(Index particle_count, Index rigid_count) {
+  // Mixed bindings are resolved afresh from their parents (a frame point may have been unbound since).
+  for (Index k = 0; k < m_mixed.size(); ++k)
+    m_linear.add(m_mixed.id(k), m_mixed.particle(k), m_mixed.parents(k), m_mixed.weights(k));
+  m_mixed.clear();
   for (Index k = 0; k < m_rigid.size(); ++k)
     if (m_rigid.body(k) < 0 || m_rigid.body(k) >= rigid_count)
       fail("binding ", m_rigid.id(k), ": rigid body ", m_rigid.body(k), " out of range [0, ", rigid_count, ")");
@@ -88,34 +92,45 @@ void HardBindings::flatten(Index particle_count, Index rigid_count) {
 
   LinearBindings flat;
   Chain chain;
-  std::vector<Index> parents;
+  std::vector<Index> parents, frame;
   std::vector<double> weights;
+  // Sorted by parent, repeated parents (two chains reaching the same node) merged: a fixed order.
+  const auto merge = [&](std::vector<Term>& terms, bool on_frame) {
+    std::sort(terms.begin(), terms.end(), [](const Term& a, const Term& b) { return a.parent < b.parent; });
+    const std::size_t first = parents.size();
+    for (std::size_t i = 0; i < terms.size(); ++i) {
+      if (i > 0 && parents.size() > first && terms[i].parent == parents.back()) {
+        weights.back() += terms[i].weight;
+      } else {
+        parents.push_back(terms[i].parent);
+        weights.push_back(terms[i].weight);
+        frame.push_back(on_frame ? m_index_in_kind[terms[i].parent] : -1);
+      }
+    }
+  };
   for (Index k = 0; k < m_linear.size(); ++k) {
     const Index id = m_linear.id(k);
     resolve_chain(k, chain);
-    if (chain.rigid_body >= 0) {
+    parents.clear();
+    weights.clear();
+    frame.clear();
+    if (chain.rigid_body >= 0 && chain.terms.empty()) {
       // A point embedded among points of one rigid frame is itself a point of that frame:
       // sum_i w_i (x_c + R r0_i) = x_c + R sum_i w_i r0_i because sum_i w_i = 1.
-      if (!chain.terms.empty())
-        fail("binding ", id, ": parents mix a rigid frame and free particles, which is not a linear map");
       m_rigid.add(id, m_linear.particle(k), chain.rigid_body, chain.rigid_r0 / chain.rigid_weight);
       continue;
     }
-    // Merge repeated parents (two chains reaching the same node) in a fixed, sorted order.
-    std::sort(chain.terms.begin(), chain.terms.end(), [](const Term& a, const Term& b) { return a.parent < b.parent; });
-    parents.clear();
-    weights.clear();
-    for (std::size_t i = 0; i < chain.terms.size(); ++i) {
-      if (i > 0 && chain.terms[i].parent == parents.back()) {
-        weights.back() += chain.terms[i].weight;
-      } else {
-        parents.push_back(chain.terms[i].parent);
-        weights.push_back(chain.terms[i].weight);
-      }
+    merge(chain.terms, false);
+    if (chain.rigid_body >= 0) {
+      // Free particles and one frame's points: W stays linear in the particles and the body's twist.
+      merge(chain.frame_terms, true);
+      m_mixed.add(id, m_linear.particle(k), parents, weights, frame, chain.rigid_body);
+      continue;
     }
     flat.add(id, m_linear.particle(k), parents, weights);
   }
   m_linear = std::move(flat);
+  m_mixed.set_frames(&m_rigid);
   rebuild_lookup(particle_count);
 }
 
@@ -127,6 +142,7 @@ void HardBindings::resolve_chain(Index k, Chain& chain) const {
   chain.terms.clear();
   for (std::size_t i = 0; i < m_linear.parents(k).size(); ++i)
     chain.terms.push_back({m_linear.parents(k)[i], m_linear.weights(k)[i]});
+  chain.frame_terms.clear();
   chain.rigid_body = -1;
   chain.rigid_r0 = Vec3::Zero();
   chain.rigid_weight = 0.0;
@@ -152,6 +168,7 @@ void HardBindings::resolve_chain(Index k, Chain& chain) const {
           fail("binding ", id, ": parents lie on different rigid bodies (", chain.rigid_body, " and ",
                m_rigid.body(code), ")");
         chain.rigid_body = m_rigid.body(code);
+        chain.frame_terms.push_back(t);
         chain.rigid_r0 += t.weight * m_rigid.offset_body(code);
         chain.rigid_weight += t.weight;
       }
@@ -181,16 +198,21 @@ void HardBindings::clamp_velocities(Vectors3& v, const Vectors3& body_v, const V
   for (const BindingKind* kind : kinds()) kind->clamp_velocities(v, body_v, body_w);
 }
 
+// W^T passes visit the kinds backwards: a mixed point's share on frame points reaches their rows
+// before RigidBindings carries those rows to the bodies.
 void HardBindings::distribute(Vectors3& f, Vectors6& wrench) const {
-  for (const BindingKind* kind : kinds()) kind->distribute(f, wrench);
+  const auto all = kinds();
+  for (auto kind = all.rbegin(); kind != all.rend(); ++kind) (*kind)->distribute(f, wrench);
 }
 
 void HardBindings::distribute_masses(VectorXd& mass) const {
-  for (const BindingKind* kind : kinds()) kind->distribute_masses(mass);
+  const auto all = kinds();
+  for (auto kind = all.rbegin(); kind != all.rend(); ++kind) (*kind)->distribute_masses(mass);
 }
 
 void HardBindings::add_preconditioner_blocks(DiagonalBlocks& blocks, std::vector<Mat6>& body_blocks) const {
-  for (const BindingKind* kind : kinds()) kind->add_preconditioner_blocks(blocks, body_blocks);
+  const auto all = kinds();
+  for (auto kind = all.rbegin(); kind != all.rend(); ++kind) (*kind)->add_preconditioner_blocks(blocks, body_blocks);
 }
 
 void HardBindings::inverse_effective_masses(const VectorXd& mass, const RigidBodyParticles& bodies,

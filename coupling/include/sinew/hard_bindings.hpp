@@ -2,20 +2,25 @@
 // state is a linear map W of their parents.
 //
 // Each kind of binding lives in its own class (sinew/bindings/): LinearBindings, points embedded in
-// particles (segment, triangle, tet, point cloud), and RigidBindings, points on rigid frames. A kind
-// owns its maths (W, W^T, masses, effective masses, impulses, drift, preconditioner blocks; see
-// BindingKind). This class holds one of each, visits them in a fixed order (linear, then rigid: the
-// order every sum is taken in), finds the binding of a particle, and resolves chains: a parent is
-// never itself bound once flatten() has run (T-junctions on refined edges, points on points of a
-// rigid frame), so W and W^T are single passes in list order.
+// particles (segment, triangle, tet, point cloud), RigidBindings, points on rigid frames, and
+// MixedBindings, points embedded among free particles and points of one rigid frame (a fiber's
+// structure particle near where its body is bound to a Bullet body). A kind owns its maths (W, W^T,
+// masses, effective masses, impulses, drift, preconditioner blocks; see BindingKind). This class holds
+// one of each, visits them in a fixed order (linear, rigid, mixed for W; mixed, rigid, linear for
+// W^T: a mixed point's parents on the frame are rigid frame points, mapped before it and carrying its
+// share after it), finds the binding of a particle, and resolves chains: once flatten() has run, a
+// parent is bound only where a mixed point hangs on frame points (T-junctions on refined edges,
+// points on points of a rigid frame resolve fully), so W and W^T are single passes in list order.
 //
 // Adding a kind: its class under sinew/bindings/ (and src/bindings/), a member here with its entries
 // in kinds() and mutable_kinds(), an add_* here and a System::bind_* that creates its bindings.
-// flatten() resolves chains through the two built-in kinds only: a point of another kind cannot be
-// the parent of a linear binding (flatten says so by name) unless flatten learns to expand it.
+// flatten() resolves chains through linear and rigid points (mixed ones go back to linear first and
+// are resolved again): a point of another kind cannot be the parent of a linear binding (flatten
+// says so by name) unless flatten learns to expand it.
 #pragma once
 
 #include "sinew/bindings/linear_bindings.hpp"
+#include "sinew/bindings/mixed_bindings.hpp"
 #include "sinew/bindings/rigid_bindings.hpp"
 
 #include <array>
@@ -42,14 +47,16 @@ class HardBindings {
   /// Removes the hard binding of `particle`; returns false if it had none. Call flatten() afterwards.
   bool remove(Index particle);
 
-  /// Resolves chains so that no parent is bound, merging repeated parents. Throws on cycles and on
-  /// linear bindings whose parents lie on different rigid bodies or mix rigid and free parents.
+  /// Resolves chains so that no parent is bound, merging repeated parents; a chain that reaches free
+  /// particles and one rigid frame's points becomes a mixed binding on both. Throws on cycles and on
+  /// linear bindings whose parents lie on different rigid bodies.
   void flatten(Index particle_count, Index rigid_count);
 
-  /// Every kind, in the order every pass visits them.
-  std::array<const BindingKind*, 2> kinds() const { return {&m_linear, &m_rigid}; }
+  /// Every kind, in the order W visits them (W^T visits them backwards).
+  std::array<const BindingKind*, 3> kinds() const { return {&m_linear, &m_rigid, &m_mixed}; }
   const LinearBindings& linear() const { return m_linear; }
   const RigidBindings& rigid() const { return m_rigid; }
+  const MixedBindings& mixed() const { return m_mixed; }
 
   Index linear_count() const { return m_linear.size(); }
   Index rigid_count() const { return m_rigid.size(); }
@@ -137,7 +144,7 @@ class HardBindings {
     const auto kind = static_cast<std::size_t>(m_kind_of[particle]);
     return kind < all.size() ? all[kind] : nullptr;
   }
-  std::array<BindingKind*, 2> mutable_kinds() { return {&m_linear, &m_rigid}; }
+  std::array<BindingKind*, 3> mutable_kinds() { return {&m_linear, &m_rigid, &m_mixed}; }
   void rebuild_lookup(Index particle_count);
   struct Term {
     Index parent;
@@ -146,6 +153,7 @@ class HardBindings {
   /// Linear binding k expanded through bound parents (flatten's work per binding; scratch reused).
   struct Chain {
     std::vector<Term> terms, next;  ///< on unbound particles
+    std::vector<Term> frame_terms;  ///< on the rigid frame points reached
     Index rigid_body = -1;          ///< the rigid frame the chain reached, or -1
     Vec3 rigid_r0 = Vec3::Zero();   ///< sum of w r0 over the frame points reached
     double rigid_weight = 0.0;      ///< sum of their weights
@@ -154,6 +162,7 @@ class HardBindings {
 
   LinearBindings m_linear;
   RigidBindings m_rigid;
+  MixedBindings m_mixed;
   Index m_added = 0;  // bindings ever added: the id that names the next one in messages
   // Per particle: the kind (index into kinds(), -1 when unbound) and the binding's index in it.
   std::vector<std::int8_t> m_kind_of;

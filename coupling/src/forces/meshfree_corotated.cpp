@@ -6,6 +6,7 @@
 #include "signed_svd.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numbers>
 #include <numeric>
@@ -123,6 +124,17 @@ MeshfreeCorotated::MeshfreeCorotated(std::vector<Index> particles, const Vectors
     const Mat3 correction = M.inverse().transpose();
     for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) m_g[e] = correction * m_g[e];
   }
+  // What every pass reads per neighbour entry: V_j g_kj and X_kj.
+  m_vg.resize(m_neighbours.size());
+  m_X.resize(m_neighbours.size());
+  m_neighbour_particle.resize(m_neighbours.size());
+  for (std::size_t k = 0; k < count; ++k)
+    for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
+      const auto j = static_cast<std::size_t>(m_neighbours[e]);
+      m_vg[e] = m_volume[j] * m_g[e];
+      m_neighbour_particle[e] = m_particles[j];
+      m_X[e] = m_rest.col(static_cast<Index>(j)) - m_rest.col(static_cast<Index>(k));
+    }
   m_fraction.assign(count, 1.0);
   m_state.resize(count);
   for (State& s : m_state) s.F.setConstant(std::numeric_limits<double>::quiet_NaN());
@@ -142,21 +154,28 @@ void MeshfreeCorotated::validate(Index particle_count) const {
       fail(kName, ": particle ", p, " is outside the system's ", particle_count, " particles");
 }
 
+// Plain loops over raw columns: the passes' hot spots (the neighbour lists are long, the terms small).
 Mat3 MeshfreeCorotated::gradient_of(const Vectors3& x, std::size_t k) const {
-  Mat3 F = Mat3::Zero();
-  const Vec3 xk = x.col(m_particles[k]);
+  const double* xk = x.col(m_particles[k]).data();
+  double F[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};  // column-major
   for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
-    const auto j = static_cast<std::size_t>(m_neighbours[e]);
-    F += m_volume[j] * (Vec3(x.col(m_particles[j])) - xk) * m_g[e].transpose();
+    const double* xj = x.col(m_neighbour_particle[e]).data();
+    const double* g = m_vg[e].data();
+    const double d0 = xj[0] - xk[0], d1 = xj[1] - xk[1], d2 = xj[2] - xk[2];
+    for (int c = 0; c < 3; ++c) {
+      F[3 * c + 0] += d0 * g[c];
+      F[3 * c + 1] += d1 * g[c];
+      F[3 * c + 2] += d2 * g[c];
+    }
   }
-  return F;
+  return Eigen::Map<const Mat3>(F);
 }
 
 void MeshfreeCorotated::update_position_state(const Vectors3& x) {
   for (std::size_t k = 0; k < m_particles.size(); ++k) {
     State& s = m_state[k];
     s.F = gradient_of(x, k);
-    const detail::SignedSvd svd = detail::signed_svd(s.F);
+    const detail::SignedSvd svd = detail::signed_svd_from_eigen(s.F);
     s.U = svd.U;
     s.V = svd.V;
     s.R = svd.U * svd.V.transpose();
@@ -169,43 +188,66 @@ double MeshfreeCorotated::potential_energy(const Vectors3& x) const {
   double energy = 0.0;
   for (std::size_t k = 0; k < m_particles.size(); ++k)
     energy += m_volume[k] * m_fraction[k] *
-              detail::corotated_energy_density(detail::signed_svd(gradient_of(x, k)).sigma, m_mu, m_lambda);
+              detail::corotated_energy_density(detail::signed_svd_from_eigen(gradient_of(x, k)).sigma, m_mu, m_lambda);
   return energy + hourglass_energy(x);
 }
 
-template <typename Term>
-void MeshfreeCorotated::scatter(Vectors3& f, Term&& term) const {
+// One pass over the stencils, three sweeps of each particle's neighbours (its F, the penalty's B, the
+// scatter). For particle k: F_k of y; h_k = stress(k, F_k), V_k times a first Piola-Kirchhoff stress
+// (or its differential, or a damping stress); with c = hourglass_scale alpha mu, the penalty's
+// b_kj = c phi_k w_kj (y_j - y_k - F_k X_kj) and B_k = sum_j b_kj X_kj^T (the penalty.s gradient, derived
+// above hourglass_energy). Then, with V_j g_kj stored per neighbour entry,
+//   f_j += -b_kj + (B_k - h_k) V_j g_kj   (each neighbour j of k),   f_k -= the sum of those.
+template <typename Stress>
+void MeshfreeCorotated::stencil_pass(const Vectors3& y, double hourglass_scale, Vectors3& f, Stress&& stress) const {
+  const double c = hourglass_scale * m_settings.hourglass * m_mu;
+  // The penalty's b_kj of a stencil, kept between its two sweeps (recomputed for a stencil this large).
+  constexpr std::size_t kKept = 160;
+  std::array<Vec3, kKept> kept;
   for (std::size_t k = 0; k < m_particles.size(); ++k) {
-    const Mat3 h = term(k);  // V_k times a first Piola-Kirchhoff stress (or its differential)
+    const std::size_t begin = m_offset[k], end = m_offset[k + 1];
+    const Vec3 yk = y.col(m_particles[k]);
+    const Mat3 F = gradient_of(y, k);
+    Mat3 H = -stress(k, F);
+    const double ck = c * m_fraction[k];
+    const bool keep = end - begin <= kKept;
+    const auto b = [&](std::size_t e) {
+      return Vec3((ck * m_hg_weight[e]) * (Vec3(y.col(m_neighbour_particle[e])) - yk - F * m_X[e]));
+    };
+    if (ck != 0.0)
+      for (std::size_t e = begin; e < end; ++e) {
+        const Vec3 be = b(e);
+        if (keep) kept[e - begin] = be;
+        H += be * m_X[e].transpose();
+      }
     Vec3 sum = Vec3::Zero();
-    for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
-      const auto j = static_cast<std::size_t>(m_neighbours[e]);
-      const Vec3 t = m_volume[j] * (h * m_g[e]);
-      f.col(m_particles[j]) -= t;
+    for (std::size_t e = begin; e < end; ++e) {
+      Vec3 t = H * m_vg[e];
+      if (ck != 0.0) t -= keep ? kept[e - begin] : b(e);
+      f.col(m_neighbour_particle[e]) += t;
       sum += t;
     }
-    f.col(m_particles[k]) += sum;
+    f.col(m_particles[k]) -= sum;
   }
 }
 
 void MeshfreeCorotated::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
-  scatter(f, [&](std::size_t k) {
-    const detail::SignedSvd s = detail::signed_svd(gradient_of(x, k));
+  stencil_pass(x, 1.0, f, [&](std::size_t k, const Mat3& F) {
+    const detail::SignedSvd s = detail::signed_svd_from_eigen(F);
     return Mat3(m_volume[k] * m_fraction[k] * s.U * corotated_diagonal_stress(s.sigma, m_mu, m_lambda).asDiagonal() *
                 s.V.transpose());
   });
-  add_hourglass(x, 1.0, f);
 }
 
-// The corotated differential in the SVD frame (corotated_stress.hpp), per particle.
+// The corotated differential in the SVD frame (corotated_stress.hpp), per particle; the penalty is
+// linear in the positions: its own differential.
 void MeshfreeCorotated::add_elastic_differentials(const Vectors3& dx, Vectors3& df) const {
-  scatter(df, [&](std::size_t k) {
+  stencil_pass(dx, 1.0, df, [&](std::size_t k, const Mat3& dF) {
     const State& s = m_state[k];
-    const Mat3 dF_hat = s.U.transpose() * gradient_of(dx, k) * s.V;
+    const Mat3 dF_hat = s.U.transpose() * dF * s.V;
     const Mat3 dP_hat = detail::corotated_stress_differential(dF_hat, s.sigma, s.phat, m_mu, m_lambda);
     return Mat3(m_volume[k] * m_fraction[k] * s.U * dP_hat * s.V.transpose());
   });
-  add_hourglass(dx, 1.0, df);  // linear in the positions: its own differential
 }
 
 void MeshfreeCorotated::add_damping_forces(const Vectors3& v, Vectors3& f) const { add_implicit_products(v, 0.0, f); }
@@ -215,51 +257,22 @@ void MeshfreeCorotated::add_damping_forces(const Vectors3& v, Vectors3& f) const
 void MeshfreeCorotated::add_implicit_products(const Vectors3& v, double b, Vectors3& f) const {
   const double hg = m_settings.implicit ? b : 0.0;
   const double scale = m_settings.beta + hg;
-  if (scale != 0.0) {
-    scatter(f, [&](std::size_t k) {
-      const Mat3& R = m_state[k].R;
-      const Mat3 RtFdot = R.transpose() * gradient_of(v, k);
-      const Mat3 Edot = 0.5 * (RtFdot + RtFdot.transpose());
-      const Mat3 Sdot = 2.0 * m_mu * Edot + (m_lambda * Edot.trace()) * Mat3::Identity();
-      return Mat3((m_volume[k] * m_fraction[k] * scale) * R * Sdot);  // scatter() applies it as -h g, as a stress
-    });
-  }
-  if (hg != 0.0) add_hourglass(v, hg, f);
+  if (scale == 0.0 && hg == 0.0) return;
+  stencil_pass(v, hg, f, [&](std::size_t k, const Mat3& Fdot) {
+    if (scale == 0.0) return Mat3(Mat3::Zero());
+    const Mat3& R = m_state[k].R;
+    const Mat3 RtFdot = R.transpose() * Fdot;
+    const Mat3 Edot = 0.5 * (RtFdot + RtFdot.transpose());
+    const Mat3 Sdot = 2.0 * m_mu * Edot + (m_lambda * Edot.trace()) * Mat3::Identity();
+    return Mat3((m_volume[k] * m_fraction[k] * scale) * R * Sdot);  // applied as -h g, as a stress
+  });
 }
 
-// E_hg = alpha mu / 2 sum_k sum_j w_kj |r_kj|^2, r_kj = x_j - x_k - F_k X_kj (linear in x, zero for
-// affine x). With b_kj = alpha mu w_kj r_kj and B_k = sum_j b_kj X_kj^T, since
+// E_hg = alpha mu / 2 sum_k phi_k sum_j w_kj |r_kj|^2, r_kj = x_j - x_k - F_k X_kj (linear in x, zero
+// for affine x). With b_kj = alpha mu phi_k w_kj r_kj and B_k = sum_j b_kj X_kj^T, since
 // F_k X_kj = sum_l V_l (x_l - x_k) (g_kl . X_kj):
-//   -dE/dx_j = -b_kj + V_j B_k g_kj   (j a neighbour of k),   -dE/dx_k = -(sum over j of that).
-void MeshfreeCorotated::add_hourglass(const Vectors3& x, double scale, Vectors3& f) const {
-  const double c = scale * m_settings.hourglass * m_mu;
-  if (c == 0.0) return;
-  for (std::size_t k = 0; k < m_particles.size(); ++k) {
-    const Mat3 F = gradient_of(x, k);
-    const Vec3 xk = x.col(m_particles[k]);
-    const double ck = c * m_fraction[k];
-    // b_kj = ck w_kj r_kj, recomputed in the second pass rather than stored (no allocation here:
-    // this runs in every product of the solves).
-    const auto b = [&](std::size_t e, const Vec3& X) {
-      return Vec3(ck * m_hg_weight[e] *
-                  (Vec3(x.col(m_particles[static_cast<std::size_t>(m_neighbours[e])])) - xk - F * X));
-    };
-    Mat3 B = Mat3::Zero();
-    for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
-      const Vec3 X = m_rest.col(m_neighbours[e]) - m_rest.col(static_cast<Index>(k));
-      B += b(e, X) * X.transpose();
-    }
-    Vec3 sum = Vec3::Zero();
-    for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
-      const auto j = static_cast<std::size_t>(m_neighbours[e]);
-      const Vec3 X = m_rest.col(m_neighbours[e]) - m_rest.col(static_cast<Index>(k));
-      const Vec3 t = -b(e, X) + m_volume[j] * (B * m_g[e]);
-      f.col(m_particles[j]) += t;
-      sum += t;
-    }
-    f.col(m_particles[k]) -= sum;
-  }
-}
+//   -dE/dx_j = -b_kj + V_j B_k g_kj   (j a neighbour of k),   -dE/dx_k = -(sum over j of that);
+// stencil_pass adds these with the stresses' terms.
 
 double MeshfreeCorotated::hourglass_energy(const Vectors3& x) const {
   const double c = m_settings.hourglass * m_mu;
@@ -270,8 +283,8 @@ double MeshfreeCorotated::hourglass_energy(const Vectors3& x) const {
     const Vec3 xk = x.col(m_particles[k]);
     for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
       const auto j = static_cast<std::size_t>(m_neighbours[e]);
-      const Vec3 X = m_rest.col(static_cast<Index>(j)) - m_rest.col(static_cast<Index>(k));
-      energy += 0.5 * c * m_fraction[k] * m_hg_weight[e] * (Vec3(x.col(m_particles[j])) - xk - F * X).squaredNorm();
+      energy +=
+          0.5 * c * m_fraction[k] * m_hg_weight[e] * (Vec3(x.col(m_particles[j])) - xk - F * m_X[e]).squaredNorm();
     }
   }
   return energy;

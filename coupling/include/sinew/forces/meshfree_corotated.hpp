@@ -90,23 +90,25 @@ class MeshfreeCorotated final : public Force {
     Vec3 sigma, phat;
   };
   Mat3 gradient_of(const Vectors3& x, std::size_t k) const;  // F_k at x
-  /// f += the stencil terms: for each particle k, h_k = term(k) (3x3), f_j -= V_k V_j h_k g_kj,
-  /// f_k += the same, over k's neighbours j.
-  template <typename Term>
-  void scatter(Vectors3& f, Term&& term) const;
-  void add_hourglass(const Vectors3& x, double scale, Vectors3& f) const;
+  /// f += each stencil's stress terms (h_k = stress(k, F_k of y), f_j -= h_k V_j g_kj, f_k += the
+  /// same) and hourglass_scale times its penalty's, in one pass (see the source).
+  template <typename Stress>
+  void stencil_pass(const Vectors3& y, double hourglass_scale, Vectors3& f, Stress&& stress) const;
   double hourglass_energy(const Vectors3& x) const;
 
   std::vector<Index> m_particles;
   std::vector<double> m_volume;
   MeshfreeCorotatedSettings m_settings;
   double m_mu = 0.0, m_lambda = 0.0;
-  Vectors3 m_rest;                    // 3 x M: the material particles' rest positions
-  std::vector<std::size_t> m_offset;  // CSR: particle k's neighbours are [m_offset[k], m_offset[k + 1])
-  std::vector<Index> m_neighbours;    // positions in m_particles
-  std::vector<Vec3> m_g;              // corrected kernel gradient g_kj per neighbour entry
-  std::vector<double> m_hg_weight;    // V_k V_j W_kj / |X_kj|^2 per neighbour entry
-  std::vector<double> m_fraction;     // per material particle: its stencil's matrix fraction
+  Vectors3 m_rest;                          // 3 x M: the material particles' rest positions
+  std::vector<std::size_t> m_offset;        // CSR: particle k's neighbours are [m_offset[k], m_offset[k + 1])
+  std::vector<Index> m_neighbours;          // positions in m_particles
+  std::vector<Index> m_neighbour_particle;  // the system's particle of each neighbour entry
+  std::vector<Vec3> m_g;                    // corrected kernel gradient g_kj per neighbour entry
+  std::vector<Vec3> m_vg;                   // V_j g_kj per neighbour entry
+  std::vector<Vec3> m_X;                    // X_kj = X_j - X_k per neighbour entry
+  std::vector<double> m_hg_weight;          // V_k V_j W_kj / |X_kj|^2 per neighbour entry
+  std::vector<double> m_fraction;           // per material particle: its stencil's matrix fraction
   std::vector<State> m_state;
 };
 
