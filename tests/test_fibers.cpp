@@ -117,16 +117,16 @@ TEST(ElasticRods, ACurvedHingeSweptThroughStraightStaysFinite) {
   EXPECT_LT(largest, 10.0 * EI * psibar / (0.2 * 0.1));
 }
 
-// A block of material particles (n^3 on a lattice of spacing s from the origin, volume s^3, 1000
-// kg/m^3) with the meshfree matrix, in a system without gravity.
+// A block of material particles (n x n x length on a lattice of spacing s from the origin, z along
+// the length; volume s^3, 1000 kg/m^3) with the meshfree matrix, in a system without gravity.
 struct Block {
   System system{SystemSettings{.gravity = Vec3::Zero()}};
   MeshfreeCorotated* matrix = nullptr;
   double s = 0.006, h = 0.015, E = 1e6;
-  int n = 6;
-  explicit Block(int count = 6) : n(count) {
+  int n = 6, length = 6;
+  explicit Block(int count = 6, int along = 0) : n(count), length(along > 0 ? along : count) {
     std::vector<Index> particles;
-    for (int k = 0; k < n; ++k)
+    for (int k = 0; k < length; ++k)
       for (int j = 0; j < n; ++j)
         for (int i = 0; i < n; ++i)
           particles.push_back(system.add_particle(Vec3(i * s, j * s, k * s), Vec3::Zero(), 1000.0 * s * s * s));
@@ -140,16 +140,19 @@ struct Block {
     std::vector<Vectors3> lines;
     for (const double x : {1.5, 3.5})
       for (const double y : {1.5, 3.5}) {
-        Vectors3 line(3, n + 3);
-        for (int k = 0; k < n + 3; ++k) line.col(k) = s * Vec3(x, y, double(k) - 3.0);
+        Vectors3 line(3, length + 3);
+        for (int k = 0; k < length + 3; ++k) line.col(k) = s * Vec3(x, y, double(k) - 3.0);
         lines.push_back(line);
       }
     return lines;
   }
   // The stiffness against a pull along `axis`: the layer at 0 along it clamped, a force F spread over
   // the far layer, F / (the far layer's mean displacement), from the assembled differential of the
-  // matrix and the fibers (structure particles through their weights, W^T K W).
-  double stiffness(int axis, const EmbeddedFibers* fibers) {
+  // matrix and the fibers (structure particles through their weights, W^T K W). With `load` another
+  // axis the far layer is pushed across instead: the stiffness of a cantilever's tip.
+  double stiffness(int axis, const EmbeddedFibers* fibers, int load = -1) {
+    if (load < 0) load = axis;
+    const int far_layer = (axis == 2 ? length : n) - 1;
     const Vectors3& x = system.particles().x;
     matrix->update_position_state(x);
     if (fibers && fibers->force) fibers->force->update_position_state(x);
@@ -159,7 +162,7 @@ struct Block {
     for (const Index i : mp) {
       if (x(axis, i) < 0.5 * s) continue;
       for (int a = 0; a < 3; ++a) dof.push_back(3 * i + a);
-      far[static_cast<std::size_t>(i)] = x(axis, i) > (n - 1.5) * s;
+      far[static_cast<std::size_t>(i)] = x(axis, i) > (far_layer - 0.5) * s;
     }
     const Index m = static_cast<Index>(dof.size());
     Eigen::MatrixXd K(m, m);
@@ -194,12 +197,12 @@ struct Block {
     Eigen::VectorXd b = Eigen::VectorXd::Zero(m);
     int count = 0;
     for (Index r = 0; r < m; ++r)
-      count += (dof[static_cast<std::size_t>(r)] % 3 == axis &&
+      count += (dof[static_cast<std::size_t>(r)] % 3 == load &&
                 far[static_cast<std::size_t>(dof[static_cast<std::size_t>(r)] / 3)])
                    ? 1
                    : 0;
     for (Index r = 0; r < m; ++r)
-      if (dof[static_cast<std::size_t>(r)] % 3 == axis &&
+      if (dof[static_cast<std::size_t>(r)] % 3 == load &&
           far[static_cast<std::size_t>(dof[static_cast<std::size_t>(r)] / 3)])
         b[r] = 1.0 / count;
     const Eigen::VectorXd u = K.ldlt().solve(b);
@@ -257,6 +260,40 @@ TEST(EmbeddedFibers, AxialFibersMakeTheBlockStifferAlongThem) {
   EXPECT_NEAR(across / across0, 0.5, 0.05);
   EXPECT_GE(along / across, 1.7);
   EXPECT_NEAR(along_soft / across_soft, 1.0, 0.05);
+}
+
+// The paper's material-editing claims (fibers notes, acceptance checks 8 and 9), on a 6 x 6 x 12 bar:
+// four axial fibers (lambda 0.5, EA 6 times the bar's own E A) make it at least twice as stiff along
+// them as the plain bar and at most 1.2 times across; one thin fiber on the neutral axis (a volume
+// fraction of 0.1: it takes little of the matrix around it; as stiff as one of the four, lambda EA,
+// and the bending stiffness of a rod of radius r = s / 2, EA r^2 / 4) raises the axial stiffness at least twice and the
+// cantilever's bending stiffness at most 1.3 times: easy to bend, hard to stretch. (The matrix hands
+// the end loads to the fibers over about h at each end and through its own shear, so the gain grows
+// with the bar's length and with the matrix it keeps.)
+TEST(EmbeddedFibers, FibersStiffenAlongThemAndNotAcrossOrInBending) {
+  Block plain(6, 12);
+  const double along0 = plain.stiffness(2, nullptr), across0 = plain.stiffness(0, nullptr),
+               bend0 = plain.stiffness(2, nullptr, 0);
+  const double EA = 6.0 * plain.E * std::pow(plain.n * plain.s, 2);
+  Block axial(6, 12);
+  const EmbeddedFibers four = embed_fibers(axial.system, *axial.matrix, axial.h, axial.axial_fibers(),
+                                           {.stretch_stiffness = EA, .bending_stiffness = 0.0, .lambda = 0.5});
+  const double along = axial.stiffness(2, &four), across = axial.stiffness(0, &four);
+  Block neutral(6, 12);
+  Vectors3 axis(3, neutral.length + 3);
+  for (int k = 0; k < neutral.length + 3; ++k) axis.col(k) = neutral.s * Vec3(2.5, 2.5, double(k) - 3.0);
+  const double r = 0.5 * neutral.s;
+  const double lambda = 0.1, EA1 = 0.5 * EA / lambda;  // as stiff as one of the four (lambda times)
+  const EmbeddedFibers one =
+      embed_fibers(neutral.system, *neutral.matrix, neutral.h, {axis},
+                   {.stretch_stiffness = EA1, .bending_stiffness = EA1 * r * r / 4, .lambda = lambda});
+  const double along1 = neutral.stiffness(2, &one), bend1 = neutral.stiffness(2, &one, 0);
+  std::printf("four axial: along %.3f, across %.3f of the plain bar; one on the axis: along %.3f, bending %.3f\n",
+              along / along0, across / across0, along1 / along0, bend1 / bend0);
+  EXPECT_GE(along / along0, 2.0);
+  EXPECT_LE(across / across0, 1.2);
+  EXPECT_GE(along1 / along0, 2.0);
+  EXPECT_LE(bend1 / bend0, 1.3);
 }
 
 }  // namespace
