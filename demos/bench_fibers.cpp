@@ -77,8 +77,8 @@ struct Bar {
                                                                                              .beta = beta,
                                                                                              .hourglass = 0.1,
                                                                                              .implicit = implicit}));
-    // Fibers sampled at the spacing along the bar, a spacing in from each end (13 and 14 points: the
-    // paper's 52 / 4 and 28 / 2).
+    // Fibers along the bar from 4% to 96% of its length, 13 and 14 points (the paper's 52 / 4 and
+    // 28 / 2: about the spacing apart).
     std::vector<Vectors3> lines;
     const double cy = 0.5 * (b.ny - 1) * kSpacing, cz = 0.5 * (b.nx - 1) * kSpacing, r = kSpacing;
     for (int f = 0; f < b.fibers; ++f) {

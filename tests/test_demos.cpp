@@ -858,8 +858,9 @@ TEST(BarsDemo, FiberLayoutsTwistShearAndStiffenTheBar) {
 // and its fiber's structure particles near the root hang partly on the pot's frame points (mixed
 // bindings). The fiber holds the soft stalk up (its tip within 1.5 cm of where it started) until it
 // breaks; then the stalk snaps and its tip drops by more than 10 cm. Every bound point stays on its
-// frame, the 2 kg pot stays put, and the energy does not grow: before the break, nor after it (the
-// break itself removes energy; 0.2% allowed for the stalk's contact with the pot's side).
+// frame, the 2 kg pot stays put, and the energy does not grow: after the break not at all (the break
+// itself removes energy), before it by at most 0.2% (it rises by 0.08% as the stalk settles from its
+// drawn shape).
 TEST(StalkDemo, TheFiberHoldsTheStalkUpUntilItBreaks) {
   auto scene = make_bullet_scene("stalk");
   for (int f = 0; f < 150; ++f) scene->advance(1.0 / 60, scene->default_substeps());
@@ -870,14 +871,15 @@ TEST(StalkDemo, TheFiberHoldsTheStalkUpUntilItBreaks) {
   EXPECT_LT(json_field(fields, "binding_drift"), 1e-12);
   EXPECT_LT(json_field(fields, "pot_moved"), 1e-3);
   EXPECT_LE(json_field(fields, "energy_max_before_break"), 1.002 * json_field(fields, "energy_first_frame"));
-  EXPECT_LE(json_field(fields, "energy_max_after_break"), 1.002 * json_field(fields, "energy_at_break"));
+  EXPECT_LE(json_field(fields, "energy_max_after_break"), json_field(fields, "energy_at_break"));
   EXPECT_TRUE(scene->system().particles().x.allFinite());
 }
 
 // Figure 8 of the fibers paper: both stems are rooted in dynamic Bullet pots and carry Bullet heads.
 // After the same impulse the plain stem cannot carry its head (it falls below half its height) and
 // stretches along itself by more than 5%; the fibered one swings (more than 5 cm) and stands (its head
-// never below 70% of its height), stretching by less than 3%. The energy never grows.
+// never below 70% of its height), stretching by less than 3%. The energy does not grow (0.1% allowed:
+// it rises by 0.06% in the frames after the impulse).
 TEST(PlantDemo, FibersDrawnUpTheStemKeepItStandingAndUnstretched) {
   auto scene = make_bullet_scene("plant");
   for (int f = 0; f < 60; ++f) scene->advance(1.0 / 60, scene->default_substeps());
@@ -891,6 +893,26 @@ TEST(PlantDemo, FibersDrawnUpTheStemKeepItStandingAndUnstretched) {
   EXPECT_LT(json_field(stem("fibered"), "stretch_max"), 0.03);
   EXPECT_LT(json_field(fields, "binding_drift"), 1e-12);
   EXPECT_LE(json_field(fields, "energy_max"), 1.001 * json_field(fields, "energy_first_frame"));
+  EXPECT_TRUE(scene->system().particles().x.allFinite());
+}
+
+// Figure 9 of the fibers paper: after 2 s hanging from the twig the veined leaf's tip sags less than
+// the plain leaf 20 times as stiff does (the veins carry it), the soft leaf's more than twice the
+// veined one's, and the veined leaf's blade hangs from its veins (its edges at mid-length more than 1
+// mm below the midrib there, more than the stiff leaf's, which bends as one piece). Bound points stay
+// on the twig; the energy never grows.
+TEST(LeafDemo, VeinsCarryTheLeafAndLetTheBladeDroop) {
+  auto scene = make_bullet_scene("leaf");
+  for (int f = 0; f < 120; ++f) scene->advance(1.0 / 60, scene->default_substeps());
+  const std::string fields = scene->json_fields();
+  const auto leaf = [&](const char* name) { return fields.substr(fields.find(std::string("\"") + name + "\"")); };
+  const double veined = json_field(leaf("veined"), "tip_sag");
+  EXPECT_LT(veined, 0.8 * json_field(leaf("stiff"), "tip_sag"));
+  EXPECT_GT(json_field(leaf("soft"), "tip_sag"), 2.0 * veined);
+  EXPECT_GT(json_field(leaf("veined"), "blade_droop"), 1e-3);
+  EXPECT_GT(json_field(leaf("veined"), "blade_droop"), json_field(leaf("stiff"), "blade_droop") + 1e-3);
+  EXPECT_LT(json_field(fields, "binding_drift"), 1e-12);
+  EXPECT_LE(json_field(fields, "energy_max"), json_field(fields, "energy_first_frame"));
   EXPECT_TRUE(scene->system().particles().x.allFinite());
 }
 

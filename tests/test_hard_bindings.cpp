@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <array>
+#include <string>
 #include <vector>
 
 namespace sinew {
@@ -132,6 +133,64 @@ TEST(HardBindings, PointOnRigidPointsBecomesRigidBinding) {
   s.finalize();
   EXPECT_EQ(s.hard_bindings().rigid_count(), 3);
   EXPECT_NEAR((s.particles().x.col(c) - Vec3(0.25, 0.75, 0)).norm(), 0.0, 1e-14);
+}
+
+// A massless point embedded among free particles and a spinning body's frame points (a mixed
+// binding) stays exactly where W puts it while the body turns and the particles fall, also in a
+// System moved after set-up; unbinding its frame points turns it back into a point-cloud embedding,
+// and a mixed point with mass of its own is refused by name.
+TEST(HardBindings, MixedPointsFollowTheirFrameAndParticles) {
+  System s(SystemSettings{Vec3(0, -9.81, 0), true});
+  RigidBodySettings rb;
+  rb.mass = 1.0;
+  rb.inertia = Vec3(0.1, 0.2, 0.3);
+  rb.v = Vec3(0.3, 0.0, 0.0);
+  rb.w = Vec3(0.5, 1.0, 2.0);
+  const Index body = s.add_rigid_body(rb);
+  const Index a = s.add_particle(Vec3(0.2, 0.0, 0.0), Vec3::Zero(), 0.1);
+  const Index b = s.add_particle(Vec3(0.0, 0.2, 0.0), Vec3::Zero(), 0.1);
+  const Index c = s.add_particle(Vec3(0.3, 0.3, 0.0), Vec3::Zero(), 0.1);
+  const Index d = s.add_particle(Vec3(0.3, 0.0, 0.3), Vec3::Zero(), 0.1);
+  s.bind_rigid_here(a, body);
+  s.bind_rigid_here(b, body);
+  const Index m = s.add_particle(Vec3::Zero(), Vec3::Zero(), 0.0);
+  const std::array<Index, 4> parents{a, c, b, d};
+  const std::array<double, 4> w{0.3, 0.2, 0.25, 0.25};
+  s.bind_linear(m, parents, w);
+  s.finalize();
+  ASSERT_EQ(s.hard_bindings().mixed().size(), 1);
+  System moved = std::move(s);
+  for (int n = 0; n < 50; ++n) {
+    moved.step(1e-3);
+    const Vectors3& x = moved.particles().x;
+    const Vec3 expected = 0.3 * x.col(a) + 0.2 * x.col(c) + 0.25 * x.col(b) + 0.25 * x.col(d);
+    ASSERT_LT((x.col(m) - expected).norm(), 1e-14) << "step " << n;
+    ASSERT_LT(moved.max_hard_binding_drift(), 1e-14) << "step " << n;
+  }
+  moved.unbind(a);
+  moved.finalize();
+  EXPECT_EQ(moved.hard_bindings().mixed().size(), 1);  // b is still on the frame
+  moved.unbind(b);
+  moved.finalize();
+  EXPECT_EQ(moved.hard_bindings().mixed().size(), 0);
+  EXPECT_GE(moved.hard_bindings().linear_binding_of(m), 0);
+
+  System heavy;
+  const Index body2 = heavy.add_rigid_body(rb);
+  const Index e = heavy.add_particle(Vec3(0.2, 0.0, 0.0), Vec3::Zero(), 0.1);
+  const Index f = heavy.add_particle(Vec3(0.0, 0.2, 0.0), Vec3::Zero(), 0.1);
+  heavy.bind_rigid_here(e, body2);
+  const Index g = heavy.add_particle(Vec3::Zero(), Vec3::Zero(), 0.5);
+  const std::array<Index, 2> pg{e, f};
+  const std::array<double, 2> wg{0.5, 0.5};
+  heavy.bind_linear(g, pg, wg);
+  try {
+    heavy.finalize();
+    ADD_FAILURE() << "a mixed point with mass was accepted";
+  } catch (const Error& error) {
+    const std::string message = error.what();
+    EXPECT_NE(message.find("particle " + std::to_string(g) + " has mass"), std::string::npos) << message;
+  }
 }
 
 TEST(HardBindings, CycleIsRejected) {

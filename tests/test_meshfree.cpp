@@ -4,6 +4,7 @@
 // particular to a meshfree discretisation: the corrected gradient reproduces affine maps exactly at
 // every particle (the patch test), momentum and angular momentum survive long free runs, and a bar
 // stretched by an end traction shows the material's Young's modulus and Poisson ratio.
+#include "forces/signed_svd.hpp"
 #include "sinew/forces/meshfree_corotated.hpp"
 #include "sinew/system.hpp"
 
@@ -176,6 +177,43 @@ TEST(MeshfreeCorotated, AStretchedBarShowsItsYoungsModulusAndPoissonRatio) {
   std::printf("E_eff / E %.4f, nu_eff %.4f (nu %.2f)\n", E_eff / E, nu_eff, nu);
   EXPECT_NEAR(E_eff / E, 1.0, 0.1);
   EXPECT_NEAR(nu_eff, nu, 0.05);
+}
+
+// The matrix's signed SVD from the eigenvectors of F^T F against Eigen's Jacobi SVD (signed_svd), on
+// stretched, turned, inverted, nearly singular, singular and repeated-stretch F: U and V proper
+// rotations to round-off; sigma in decreasing order with only the last negative (for det F < 0), the
+// same sigma and F = U diag(sigma) V^T to 1e-8 relative to |F| (the closed-form eigenvectors of F^T F
+// lose digits where two stretches nearly coincide; away from that the error is round-off).
+TEST(MeshfreeCorotated, ItsSignedSvdMatchesTheJacobiOne) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  const auto rotation = [&] {
+    return Mat3(Eigen::AngleAxisd(3.0 * u(rng), Vec3(u(rng), u(rng), u(rng)).normalized()).toRotationMatrix());
+  };
+  std::vector<Mat3> cases;
+  for (int n = 0; n < 200; ++n) {
+    Vec3 stretch(1.0 + 0.5 * u(rng), 1.0 + 0.5 * u(rng), 1.0 + 0.5 * u(rng));
+    if (n % 4 == 1) stretch(2) = -stretch(2);                // inverted
+    if (n % 4 == 2) stretch(2) = 1e-7 * u(rng);              // nearly singular
+    if (n % 4 == 3) stretch(1) = stretch(0) * (1.0 + 1e-9);  // nearly repeated
+    cases.push_back(rotation() * stretch.asDiagonal() * rotation());
+  }
+  cases.push_back(Mat3::Identity());
+  cases.push_back(rotation());
+  cases.push_back(Mat3::Zero());
+  cases.push_back(Vec3(1.0, 0.0, 0.0) * Vec3(0.3, 0.4, 0.5).transpose());  // rank one
+  for (const Mat3& F : cases) {
+    const detail::SignedSvd fast = detail::signed_svd_from_eigen(F), jacobi = detail::signed_svd(F);
+    const double scale = std::max(F.norm(), 1e-300);
+    EXPECT_NEAR(fast.U.determinant(), 1.0, 1e-12);
+    EXPECT_NEAR(fast.V.determinant(), 1.0, 1e-12);
+    EXPECT_LT((fast.U.transpose() * fast.U - Mat3::Identity()).norm(), 1e-12);
+    EXPECT_LT((fast.V.transpose() * fast.V - Mat3::Identity()).norm(), 1e-12);
+    EXPECT_GE(fast.sigma(0), fast.sigma(1) - 1e-8 * scale);
+    EXPECT_GE(fast.sigma(1), std::abs(fast.sigma(2)) - 1e-8 * scale);
+    EXPECT_LT((fast.sigma - jacobi.sigma).norm(), 1e-8 * scale) << F;
+    EXPECT_LT((fast.U * fast.sigma.asDiagonal() * fast.V.transpose() - F).norm(), 1e-8 * scale) << F;
+  }
 }
 
 }  // namespace

@@ -408,6 +408,14 @@ void Newmark::set_step_maps(const StepModel& s, double dt, bool inertias, ChordF
     m_bound_offset.col(s.hard.rigid_particle(k)) = o;
     m_has_bound_offset = m_has_bound_offset || !o.isZero(0.0);
   }
+  // A mixed point moves with W of its parents, its frame parents' offsets included.
+  const MixedBindings& mixed = s.hard.mixed();
+  for (Index k = 0; k < mixed.size(); ++k) {
+    Vec3 o = Vec3::Zero();
+    for (std::size_t i = 0; i < mixed.parents(k).size(); ++i)
+      if (mixed.frame(k, i) >= 0) o += mixed.weights(k)[i] * Vec3(m_bound_offset.col(mixed.parents(k)[i]));
+    m_bound_offset.col(mixed.particle(k)) = o;
+  }
 }
 
 // The largest difference, over the points on frames, between the chord velocity of the current
@@ -632,11 +640,16 @@ void Newmark::move_positions(const StepModel& s, double tau) {
   auto& p = s.particles;
   m_u = m_v_half;
   s.hard.clamp_velocities(m_u, s.bodies.v, s.bodies.w);
-  if (m_has_bound_offset)
+  if (m_has_bound_offset) {
     for (Index k = 0; k < s.hard.rigid_count(); ++k) {
       const Index i = s.hard.rigid_particle(k);
       m_u.col(i) += m_bound_offset.col(i);
     }
+    for (Index k = 0; k < s.hard.mixed().size(); ++k) {
+      const Index i = s.hard.mixed().particle(k);
+      m_u.col(i) += m_bound_offset.col(i);
+    }
+  }
   for (Index i = 0; i < m_unknowns.n; ++i) {
     const ParticleKind kind = p.kind[i];
     if (is_dynamic(kind) || kind == ParticleKind::kinematic || kind == ParticleKind::hard_bound)

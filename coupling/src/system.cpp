@@ -165,12 +165,15 @@ void System::remove_particles(std::span<const Index> particles) {
     removed[static_cast<std::size_t>(i)] = 1;
   }
   // Checked before anything changes: a removed parent would leave its bound points with no state.
-  const LinearBindings& linear = m_hard.linear();
-  for (Index k = 0; k < linear.size(); ++k)
-    for (Index parent : linear.parents(k))
-      if (removed[static_cast<std::size_t>(parent)] && !removed[static_cast<std::size_t>(linear.particle(k))])
-        fail("remove_particles: particle ", parent, " is a parent of hard-bound particle ", linear.particle(k),
-             "; unbind or remove that point first");
+  const auto check_parents = [&](const auto& kind) {
+    for (Index k = 0; k < kind.size(); ++k)
+      for (Index parent : kind.parents(k))
+        if (removed[static_cast<std::size_t>(parent)] && !removed[static_cast<std::size_t>(kind.particle(k))])
+          fail("remove_particles: particle ", parent, " is a parent of hard-bound particle ", kind.particle(k),
+               "; unbind or remove that point first");
+  };
+  check_parents(m_hard.linear());
+  check_parents(m_hard.mixed());
   remove_elements_of(removed);
   for (Index i : particles) {
     m_hard.remove(i);

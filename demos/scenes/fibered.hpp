@@ -1,4 +1,4 @@
-// What the fibers scenes share (bars, press, plant, leaf, stalk): a meshfree matrix on a lattice of
+// What the fibers scenes share (stalk, plant, leaf): a meshfree matrix on a lattice of
 // material particles, laid out by a map of the lattice (straight, bent, tapered), with fibers drawn
 // into it (embed_fibers), and the lattice's outer faces to draw.
 #pragma once

@@ -438,8 +438,9 @@ void Coupling::set_up() {
 }
 
 void Coupling::release(Index b) {
-  // Points with a mass of their own go free with it; massless ones (body points, and points embedded
-  // among them that set-up has not yet resolved onto the body) have nothing left to follow.
+  // Points with a mass of their own go free with it; massless ones (body points, points embedded
+  // among them that set-up has not yet resolved onto the body, and points embedded among free
+  // particles and massless body points) have nothing left to follow.
   const RigidBindings& rigid = m_system.hard_bindings().rigid();
   const LinearBindings& linear = m_system.hard_bindings().linear();
   const VectorXd& mass = m_system.input_mass();
@@ -451,12 +452,13 @@ void Coupling::release(Index b) {
     (mass[p] > 0.0 ? freed : removed).push_back(p);
     if (mass[p] == 0.0) is_removed[static_cast<std::size_t>(p)] = 1;
   }
-  for (bool grew = true; grew;) {
-    grew = false;
-    for (Index k = 0; k < linear.size(); ++k) {
-      const Index p = linear.particle(k);
+  const MixedBindings& mixed = m_system.hard_bindings().mixed();
+  const auto remove_hanging = [&](const auto& kind) {  // massless points with a removed parent
+    bool grew = false;
+    for (Index k = 0; k < kind.size(); ++k) {
+      const Index p = kind.particle(k);
       if (is_removed[static_cast<std::size_t>(p)] || mass[p] > 0.0) continue;
-      for (Index parent : linear.parents(k))
+      for (Index parent : kind.parents(k))
         if (is_removed[static_cast<std::size_t>(parent)]) {
           removed.push_back(p);
           is_removed[static_cast<std::size_t>(p)] = 1;
@@ -464,7 +466,9 @@ void Coupling::release(Index b) {
           break;
         }
     }
-  }
+    return grew;
+  };
+  for (bool grew = true; grew;) grew = remove_hanging(linear) | remove_hanging(mixed);
   // The particle stays (indices keep their meaning) as a kinematic body at rest that nothing uses.
   set_particle_mass(b, true);
   m_mass_handed[static_cast<std::size_t>(b)] = 0;

@@ -26,12 +26,38 @@
 #include <array>
 #include <cstdint>
 #include <span>
+#include <utility>
 #include <vector>
 
 namespace sinew {
 
 class HardBindings {
  public:
+  HardBindings() = default;
+  // Copies and moves point the mixed points at their own RigidBindings (MixedBindings::set_frames).
+  HardBindings(const HardBindings& other) { *this = other; }
+  HardBindings(HardBindings&& other) noexcept { *this = std::move(other); }
+  HardBindings& operator=(const HardBindings& other) {
+    m_linear = other.m_linear;
+    m_rigid = other.m_rigid;
+    m_mixed = other.m_mixed;
+    m_added = other.m_added;
+    m_kind_of = other.m_kind_of;
+    m_index_in_kind = other.m_index_in_kind;
+    m_mixed.set_frames(&m_rigid);
+    return *this;
+  }
+  HardBindings& operator=(HardBindings&& other) noexcept {
+    m_linear = std::move(other.m_linear);
+    m_rigid = std::move(other.m_rigid);
+    m_mixed = std::move(other.m_mixed);
+    m_added = other.m_added;
+    m_kind_of = std::move(other.m_kind_of);
+    m_index_in_kind = std::move(other.m_index_in_kind);
+    m_mixed.set_frames(&m_rigid);
+    return *this;
+  }
+
   // ---- set-up --------------------------------------------------------------------------------
   /// Binds `particle` to `parents` with `weights`. Weights must be finite and sum to 1 (to 1e-9).
   /// Chains are allowed here and flattened by flatten().
@@ -83,7 +109,7 @@ class HardBindings {
   }
 
   /// The linear binding holding `particle` (after flatten()): its index in linear(), or -1 when it has
-  /// none (free, or on a rigid frame).
+  /// none (free, on a rigid frame, or a mixed point).
   Index linear_binding_of(Index particle) const {
     const BindingKind* kind = kind_of(particle);
     return kind == &m_linear ? m_index_in_kind[static_cast<std::size_t>(particle)] : -1;

@@ -70,22 +70,24 @@ double MixedBindings::max_drift(const Vectors3& x, const RigidBodyParticles& bod
   return drift;
 }
 
-double MixedBindings::frame_share(Index k, Vec3& arm) const {
+double MixedBindings::frame_share(Index k, Vec3& moment) const {
   double share = 0.0;
-  arm.setZero();
+  moment.setZero();
   for (std::size_t i = 0; i < parents(k).size(); ++i)
     if (frame(k, i) >= 0) {
       share += weights(k)[i];
-      arm += weights(k)[i] * m_frames->offset_world(frame(k, i));
+      moment += weights(k)[i] * m_frames->offset_world(frame(k, i));
     }
-  if (share != 0.0) arm /= share;
   return share;
 }
 
 Mat3 MixedBindings::frame_impulse_matrix(Index k, const RigidBodyParticles& bodies) const {
-  Vec3 arm;
-  const double share = frame_share(k, arm);
-  return (share * share) * bodies.impulse_matrix(m_body[k], arm);
+  const Index b = m_body[k];
+  if (bodies.kinematic[b]) return Mat3::Zero();
+  Vec3 moment;
+  const double share = frame_share(k, moment);
+  const Mat3 S = cross_matrix(moment);
+  return (share * share / bodies.mass[b]) * Mat3::Identity() + S.transpose() * bodies.world_inverse_inertia(b) * S;
 }
 
 Vec3 MixedBindings::point_velocity(Index k, const Vectors3& v, const RigidBodyParticles& bodies) const {
@@ -132,15 +134,17 @@ void MixedBindings::apply_impulse(Index k, const Vec3& j, Particles& p, RigidBod
       p.v.col(parents(k)[i]) += (weights(k)[i] / p.mass[parents(k)[i]]) * j;
   const Index b = m_body[k];
   if (bodies.kinematic[b]) return;
-  Vec3 arm;
-  const Vec3 J = frame_share(k, arm) * j;
-  bodies.v.col(b) += J / bodies.mass[b];
-  bodies.w.col(b) += bodies.world_inverse_inertia(b) * arm.cross(J);
+  Vec3 moment;
+  const double share = frame_share(k, moment);
+  bodies.v.col(b) += (share / bodies.mass[b]) * j;
+  bodies.w.col(b) += bodies.world_inverse_inertia(b) * moment.cross(j);
 }
 
 // Section 3.1's push-back: the free parents as LinearBindings moves them, the body by the impulse
-// w_B m_e dv (and the matching displacement) at the frame share's arm; then the frame points' world
-// offsets follow the body.
+// m_e dv at the point (w_B of it, and its moment s x about the centre; the matching displacement
+// likewise); then the frame points' world offsets follow the body. m_e is the scalar effective mass
+// (the frame share's stiffest direction), so the point moves by at most dx: it under-corrects along
+// the frame share's softer directions, as a scalar push-back does.
 void MixedBindings::push_drift(Index k, const Vec3& dx, const Vec3& dv, double m_e, Particles& p,
                                RigidBodyParticles& bodies, Vectors3& L_n) {
   if (!std::isfinite(m_e)) return;
@@ -153,16 +157,15 @@ void MixedBindings::push_drift(Index k, const Vec3& dx, const Vec3& dv, double m
   }
   const Index b = m_body[k];
   if (bodies.kinematic[b]) return;
-  Vec3 arm;
-  const double share = frame_share(k, arm) * m_e;
-  if (share == 0.0) return;
+  Vec3 moment;
+  const double share = frame_share(k, moment);
   const Mat3 inverse_inertia = bodies.world_inverse_inertia(b);
-  const Vec3 jv = share * dv, jx = share * dx;
-  bodies.v.col(b) += jv / bodies.mass[b];
-  bodies.w.col(b) += inverse_inertia * arm.cross(jv);
-  L_n.col(b) += arm.cross(jv);
-  bodies.x.col(b) += jx / bodies.mass[b];
-  bodies.q[b] = (rotation_from_vector(inverse_inertia * arm.cross(jx)) * bodies.q[b]).normalized();
+  const Vec3 jv = m_e * dv, jx = m_e * dx;  // the impulses at the point
+  bodies.v.col(b) += (share / bodies.mass[b]) * jv;
+  bodies.w.col(b) += inverse_inertia * moment.cross(jv);
+  L_n.col(b) += moment.cross(jv);
+  bodies.x.col(b) += (share / bodies.mass[b]) * jx;
+  bodies.q[b] = (rotation_from_vector(inverse_inertia * moment.cross(jx)) * bodies.q[b]).normalized();
   m_frames->update_offsets(bodies);
 }
 

@@ -8,7 +8,8 @@
 // W^T B W blocks of the block-Jacobi preconditioner and the measured drift. HardBindings holds one
 // object of each kind and visits them in a fixed order, so no other part of sinew decides by kind.
 //
-// Parents are never themselves bound: HardBindings::flatten resolves chains before the first step.
+// Parents are never themselves bound (HardBindings::flatten resolves chains before the first step),
+// except a mixed point's frame points, which W maps before it and W^T after it (MixedBindings).
 #pragma once
 
 #include "sinew/particles.hpp"

@@ -33,6 +33,8 @@ class MixedBindings final : public BindingKind {
   std::span<const Index> parents(Index k) const { return m_map.parents(k); }
   std::span<const double> weights(Index k) const { return m_map.weights(k); }
   Index body(Index k) const { return m_body[k]; }
+  /// Parent i's frame binding (an index into the RigidBindings), or -1 for a free parent.
+  Index frame(Index k, std::size_t i) const { return m_frame[static_cast<std::size_t>(m_offset[k]) + i]; }
 
   /// Appends a binding: `parents` and `weights` (checked: finite, summing to 1), `frame[i]` the index
   /// of parent i's binding in `frames` or -1 for a free parent, all frame parents on `body`.
@@ -61,13 +63,11 @@ class MixedBindings final : public BindingKind {
                   Vectors3& L_n) override;
 
  private:
-  /// w_B and its arm r_B = sum_B w_i r_i / w_B (world, at the frames' current offsets).
-  double frame_share(Index k, Vec3& arm) const;
-  /// The body's impulse matrix at the frame share's arm, times w_B^2 (zero for a kinematic body).
+  /// w_B and the frame share's moment s = sum_B w_i r_i (world, at the frames' current offsets): an
+  /// impulse j at the point gives the body (w_B j, s x j).
+  double frame_share(Index k, Vec3& moment) const;
+  /// The frame share's impulse matrix, w_B^2 / m I + s*^T I^-1 s* (zero for a kinematic body).
   Mat3 frame_impulse_matrix(Index k, const RigidBodyParticles& bodies) const;
-
-  /// Parent i's frame binding (an index into the RigidBindings), or -1 for a free parent.
-  Index frame(Index k, std::size_t i) const { return m_frame[static_cast<std::size_t>(m_offset[k]) + i]; }
 
   // The map over every parent as a point-cloud embedding: W and W^T themselves (the frame parents'
   // rows are mapped from and to the body by RigidBindings, before and after).
