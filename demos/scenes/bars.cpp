@@ -18,7 +18,10 @@ namespace {
 //   vertical  along the bar's axis: it resists being squashed;
 //   shear     tilted in one plane: squashing it shears it sideways;
 //   twist     as helices half a turn round the axis: squashing it twists it.
-// The matrix particles meet the ground themselves (friction 0.3); the fibers are bound to them.
+// The matrix particles meet the ground themselves (friction 0.3); the fibers are bound to them. The
+// JSON line also reports the largest non-affine residual any matrix particle reached and has now
+// (the zero-energy modes' measure, MeshfreeCorotated::largest_non_affine_residual: the hourglass
+// penalty holds it down).
 class Bars final : public BulletScene {
  public:
   Bars() : BulletScene(btVector3(0, -9.81, 0)) {
@@ -33,6 +36,7 @@ class Bars final : public BulletScene {
     BulletScene::advance(frame_dt, substeps);
     m_energy_max = std::max(m_energy_max, total_energy());
     for (Bar& bar : m_bars) {
+      m_non_affine_max = std::max(m_non_affine_max, bar.matrix->largest_non_affine_residual(system().particles().x));
       bar.lowest_height = std::min(bar.lowest_height, height(bar));
       bar.largest_twist = std::max(bar.largest_twist, std::abs(twist(bar)));
       bar.largest_shear = std::max(bar.largest_shear, std::abs(shear(bar)));
@@ -50,8 +54,14 @@ class Bars final : public BulletScene {
                     bar.largest_twist * 180.0 / std::numbers::pi, bar.largest_shear / kHeight);
       text += part;
     }
-    char part[128];
-    std::snprintf(part, sizeof part, "\"energy_before\": %.5f, \"energy_max\": %.5f, ", m_energy_start, m_energy_max);
+    char part[256];
+    double non_affine_now = 0.0;
+    for (const Bar& bar : m_bars)
+      non_affine_now = std::max(non_affine_now, bar.matrix->largest_non_affine_residual(system().particles().x));
+    std::snprintf(part, sizeof part,
+                  "\"non_affine_max\": %.2e, \"non_affine_now\": %.2e, \"energy_before\": %.5f, \"energy_max\": "
+                  "%.5f, ",
+                  m_non_affine_max, non_affine_now, m_energy_start, m_energy_max);
     return text + part;
   }
 
@@ -64,6 +74,7 @@ class Bars final : public BulletScene {
     const char* name = "";
     std::vector<Index> material;  // (i, j, k) at k kN kN + j kN + i
     std::size_t structure = 0;
+    MeshfreeCorotated* matrix = nullptr;
     Vec3 origin = Vec3::Zero();
     double lowest_height = kHeight, largest_twist = 0.0, largest_shear = 0.0;
   };
@@ -118,6 +129,7 @@ class Bars final : public BulletScene {
                                   .beta = 0.01,
                                   .hourglass = 0.1,
                                   .implicit = true}));
+    bar.matrix = &matrix;
     std::vector<Vectors3> lines = fibers(bar, std::string(name));
     if (!lines.empty()) {
       const double EA = 2.0 * kYoung * std::pow(kN * kSpacing, 2);
@@ -186,6 +198,7 @@ class Bars final : public BulletScene {
 
   std::vector<Bar> m_bars;
   double m_energy_start = std::numeric_limits<double>::quiet_NaN(), m_energy_max = 0.0;  // [J]
+  double m_non_affine_max = 0.0;  // MeshfreeCorotated::largest_non_affine_residual, over bars and frames
 };
 
 SINEW_REGISTER_SCENE(bullet_scene<Bars>(

@@ -274,6 +274,22 @@ void MeshfreeCorotated::add_implicit_products(const Vectors3& v, double b, Vecto
 //   -dE/dx_j = -b_kj + V_j B_k g_kj   (j a neighbour of k),   -dE/dx_k = -(sum over j of that);
 // stencil_pass adds these with the stresses' terms.
 
+double MeshfreeCorotated::largest_non_affine_residual(const Vectors3& x) const {
+  double largest = 0.0;
+  for (std::size_t k = 0; k < m_particles.size(); ++k) {
+    const Mat3 F = gradient_of(x, k);
+    const Vec3 xk = x.col(m_particles[k]);
+    double departure = 0.0, size = 0.0;
+    for (std::size_t e = m_offset[k]; e < m_offset[k + 1]; ++e) {
+      const double w = m_hg_weight[e] * m_X[e].squaredNorm() / m_volume[k];  // V_j W_kj
+      departure += w * (Vec3(x.col(m_neighbour_particle[e])) - xk - F * m_X[e]).squaredNorm();
+      size += w * m_X[e].squaredNorm();
+    }
+    if (size > 0.0) largest = std::max(largest, departure / size);
+  }
+  return largest;
+}
+
 double MeshfreeCorotated::hourglass_energy(const Vectors3& x) const {
   const double c = m_settings.hourglass * m_mu;
   if (c == 0.0) return 0.0;

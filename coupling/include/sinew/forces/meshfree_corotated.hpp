@@ -77,6 +77,10 @@ class MeshfreeCorotated final : public Force {
   std::span<const Index> neighbours(std::size_t k) const {
     return {m_neighbours.data() + m_offset[k], m_neighbours.data() + m_offset[k + 1]};
   }
+  /// The zero-energy modes' measure (the fibers notes' P8): per material particle k, its neighbours'
+  /// departure from the affine map F_k, sum_j w_kj |x_j - x_k - F_k X_kj|^2 / sum_j w_kj |X_kj|^2
+  /// (w_kj = V_j W(|X_kj|)); the largest over the particles at x. Zero for any affine x.
+  double largest_non_affine_residual(const Vectors3& x) const;
   double mu() const { return m_mu; }
   double lambda() const { return m_lambda; }
   /// The part (1 - lambda, eq. 18) of material particle `particle`'s stencil that is matrix where
