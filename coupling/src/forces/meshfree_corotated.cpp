@@ -172,7 +172,9 @@ Mat3 MeshfreeCorotated::gradient_of(const Vectors3& x, std::size_t k) const {
 }
 
 void MeshfreeCorotated::update_position_state(const Vectors3& x) {
+  m_state_x.resize(3, static_cast<Index>(m_particles.size()));
   for (std::size_t k = 0; k < m_particles.size(); ++k) {
+    m_state_x.col(static_cast<Index>(k)) = x.col(m_particles[k]);
     State& s = m_state[k];
     s.F = gradient_of(x, k);
     const detail::SignedSvd svd = detail::signed_svd_from_eigen(s.F);
@@ -193,13 +195,14 @@ double MeshfreeCorotated::potential_energy(const Vectors3& x) const {
 }
 
 // One pass over the stencils, three sweeps of each particle's neighbours (its F, the penalty's B, the
-// scatter). For particle k: F_k of y; h_k = stress(k, F_k), V_k times a first Piola-Kirchhoff stress
-// (or its differential, or a damping stress); with c = hourglass_scale alpha mu, the penalty's
-// b_kj = c phi_k w_kj (y_j - y_k - F_k X_kj) and B_k = sum_j b_kj X_kj^T (the penalty.s gradient, derived
-// above hourglass_energy). Then, with V_j g_kj stored per neighbour entry,
+// scatter). For particle k: F_k of y (with `cached`, the state's, y being where it was cached); h_k = stress(k, F_k),
+// V_k times a first Piola-Kirchhoff stress (or its differential, or a damping stress); with c = hourglass_scale alpha
+// mu, the penalty's b_kj = c phi_k w_kj (y_j - y_k - F_k X_kj) and B_k = sum_j b_kj X_kj^T (the penalty.s gradient,
+// derived above hourglass_energy). Then, with V_j g_kj stored per neighbour entry,
 //   f_j += -b_kj + (B_k - h_k) V_j g_kj   (each neighbour j of k),   f_k -= the sum of those.
 template <typename Stress>
-void MeshfreeCorotated::stencil_pass(const Vectors3& y, double hourglass_scale, Vectors3& f, Stress&& stress) const {
+void MeshfreeCorotated::stencil_pass(const Vectors3& y, double hourglass_scale, Vectors3& f, bool cached,
+                                     Stress&& stress) const {
   const double c = hourglass_scale * m_settings.hourglass * m_mu;
   // The penalty's b_kj of a stencil, kept between its two sweeps (recomputed for a stencil this large).
   constexpr std::size_t kKept = 160;
@@ -207,7 +210,7 @@ void MeshfreeCorotated::stencil_pass(const Vectors3& y, double hourglass_scale, 
   for (std::size_t k = 0; k < m_particles.size(); ++k) {
     const std::size_t begin = m_offset[k], end = m_offset[k + 1];
     const Vec3 yk = y.col(m_particles[k]);
-    const Mat3 F = gradient_of(y, k);
+    const Mat3 F = cached ? m_state[k].F : gradient_of(y, k);
     Mat3 H = -stress(k, F);
     const double ck = c * m_fraction[k];
     const bool keep = end - begin <= kKept;
@@ -231,8 +234,25 @@ void MeshfreeCorotated::stencil_pass(const Vectors3& y, double hourglass_scale, 
   }
 }
 
+// A step asks for the forces at the positions it just cached the state at: the cached F and SVD are
+// then those of x to the bit (the same operations on the same numbers), and the pass skips its first
+// sweep and the SVDs.
+bool MeshfreeCorotated::state_is_at(const Vectors3& x) const {
+  if (m_state_x.cols() != static_cast<Index>(m_particles.size())) return false;
+  for (std::size_t k = 0; k < m_particles.size(); ++k)
+    if (x.col(m_particles[k]) != m_state_x.col(static_cast<Index>(k))) return false;
+  return true;
+}
+
 void MeshfreeCorotated::add_elastic_forces(const Vectors3& x, Vectors3& f) const {
-  stencil_pass(x, 1.0, f, [&](std::size_t k, const Mat3& F) {
+  if (state_is_at(x)) {
+    stencil_pass(x, 1.0, f, true, [&](std::size_t k, const Mat3&) {
+      const State& s = m_state[k];
+      return Mat3(m_volume[k] * m_fraction[k] * s.U * s.phat.asDiagonal() * s.V.transpose());
+    });
+    return;
+  }
+  stencil_pass(x, 1.0, f, false, [&](std::size_t k, const Mat3& F) {
     const detail::SignedSvd s = detail::signed_svd_from_eigen(F);
     return Mat3(m_volume[k] * m_fraction[k] * s.U * corotated_diagonal_stress(s.sigma, m_mu, m_lambda).asDiagonal() *
                 s.V.transpose());
@@ -242,7 +262,7 @@ void MeshfreeCorotated::add_elastic_forces(const Vectors3& x, Vectors3& f) const
 // The corotated differential in the SVD frame (corotated_stress.hpp), per particle; the penalty is
 // linear in the positions: its own differential.
 void MeshfreeCorotated::add_elastic_differentials(const Vectors3& dx, Vectors3& df) const {
-  stencil_pass(dx, 1.0, df, [&](std::size_t k, const Mat3& dF) {
+  stencil_pass(dx, 1.0, df, false, [&](std::size_t k, const Mat3& dF) {
     const State& s = m_state[k];
     const Mat3 dF_hat = s.U.transpose() * dF * s.V;
     const Mat3 dP_hat = detail::corotated_stress_differential(dF_hat, s.sigma, s.phat, m_mu, m_lambda);
@@ -258,7 +278,7 @@ void MeshfreeCorotated::add_implicit_products(const Vectors3& v, double b, Vecto
   const double hg = m_settings.implicit ? b : 0.0;
   const double scale = m_settings.beta + hg;
   if (scale == 0.0 && hg == 0.0) return;
-  stencil_pass(v, hg, f, [&](std::size_t k, const Mat3& Fdot) {
+  stencil_pass(v, hg, f, false, [&](std::size_t k, const Mat3& Fdot) {
     if (scale == 0.0) return Mat3(Mat3::Zero());
     const Mat3& R = m_state[k].R;
     const Mat3 RtFdot = R.transpose() * Fdot;

@@ -97,7 +97,9 @@ class MeshfreeCorotated final : public Force {
   /// f += each stencil's stress terms (h_k = stress(k, F_k of y), f_j -= h_k V_j g_kj, f_k += the
   /// same) and hourglass_scale times its penalty's, in one pass (see the source).
   template <typename Stress>
-  void stencil_pass(const Vectors3& y, double hourglass_scale, Vectors3& f, Stress&& stress) const;
+  void stencil_pass(const Vectors3& y, double hourglass_scale, Vectors3& f, bool cached, Stress&& stress) const;
+  /// True when x holds, to the bit, the positions update_position_state last cached the state at.
+  bool state_is_at(const Vectors3& x) const;
   double hourglass_energy(const Vectors3& x) const;
 
   std::vector<Index> m_particles;
@@ -114,6 +116,7 @@ class MeshfreeCorotated final : public Force {
   std::vector<double> m_hg_weight;          // V_k V_j W_kj / |X_kj|^2 per neighbour entry
   std::vector<double> m_fraction;           // per material particle: its stencil's matrix fraction
   std::vector<State> m_state;
+  Vectors3 m_state_x;  // the material particles' positions the state was cached at (3 x M)
 };
 
 }  // namespace sinew
