@@ -6,9 +6,17 @@
 // mouse-up), left-drag elsewhere orbits, right-drag pans, the wheel zooms. Keys: space pauses, S steps
 // one frame, R resets. The HUD shows the step's timings, CG iterations and the bindings' drift.
 // --screenshot runs N frames, writes the window's picture as a PNG and exits (CI runs it under Xvfb).
+//
+// Drawing fibers (Liu et al. 2012, section 5): the "draw a fiber" window shows the scene's particles
+// from the front (x, y) and from the side (z, y); drag one stroke in each, then "make fiber" turns the
+// pair into a 3D fiber at the spacing set there (sinew::fiber_from_strokes; what it refuses, it says
+// why), drawn back in both views; "save" writes every fiber made to fibers.txt in the working
+// directory (sinew::write_fibers; sinew::read_fibers reads it, and embed_fibers draws it into a
+// meshfree matrix).
 #include "cli.hpp"
 #include "renderer.hpp"
 #include "runner.hpp"
+#include "sinew/fibers.hpp"
 
 #include <GLFW/glfw3.h>
 #include <backends/imgui_impl_glfw.h>
@@ -21,6 +29,7 @@
 #include <cstring>
 #include <memory>
 #include <string>
+#include <vector>
 
 namespace {
 
@@ -43,6 +52,100 @@ struct Session {
     // Stiff enough to lift a cloth by a corner, soft enough not to tear its elements: about 50 g per cm.
     spring = s.add_binding_spring({any, cursor, 50.0, 1.0});
     s.set_binding_spring_active(spring, false);
+  }
+};
+
+// The drawing panel: two strokes, front (x, y) and side (z, y), over the box the scene's particles
+// span, and the fibers made from them.
+struct FiberPanel {
+  Vec3 low = Vec3::Zero(), high = Vec3::Ones();  // the views' box
+  std::vector<Eigen::Vector2d> strokes[2];       // front: (x, y); side: (z, y)
+  std::vector<Vectors3> fibers;
+  float spacing = 0.01f;
+  std::string status = "drag a stroke in each view";
+
+  explicit FiberPanel(const System& s) {
+    const Vectors3& x = s.particles().x;
+    if (x.cols() == 0) return;
+    low = x.rowwise().minCoeff();
+    high = x.rowwise().maxCoeff();
+    const double size = std::max((high - low).maxCoeff(), 1e-3);
+    low -= Vec3::Constant(0.1 * size);
+    high += Vec3::Constant(0.1 * size);
+    spacing = static_cast<float>(size / 20.0);
+  }
+
+  // One view: a square canvas mapping (across, y) of the box; a left-drag inside records the stroke.
+  void view(int which, float side, const System& s) {
+    const int across = which == 0 ? 0 : 2;
+    ImGui::BeginGroup();
+    ImGui::Text(which == 0 ? "front (x, y)" : "side (z, y)");
+    const ImVec2 corner = ImGui::GetCursorScreenPos();
+    ImGui::InvisibleButton(which == 0 ? "front" : "side", ImVec2(side, side));
+    ImDrawList* draw = ImGui::GetWindowDrawList();
+    draw->AddRectFilled(corner, ImVec2(corner.x + side, corner.y + side), IM_COL32(40, 40, 48, 255));
+    const double w = high(across) - low(across), h = high(1) - low(1), extent = std::max(w, h);
+    const auto to_screen = [&](double a, double y) {
+      return ImVec2(corner.x + float((a - low(across)) / extent * side),
+                    corner.y + float((high(1) - y) / extent * side));
+    };
+    const auto to_world = [&](ImVec2 p) {
+      return Eigen::Vector2d(low(across) + (p.x - corner.x) / side * extent,
+                             high(1) - (p.y - corner.y) / side * extent);
+    };
+    if (ImGui::IsItemActive() && ImGui::IsMouseDown(0)) {
+      if (ImGui::IsItemActivated()) strokes[which].clear();
+      const Eigen::Vector2d p = to_world(ImGui::GetIO().MousePos);
+      if (strokes[which].empty() || (p - strokes[which].back()).norm() > 1e-3 * extent) strokes[which].push_back(p);
+    }
+    const Vectors3& x = s.particles().x;  // the deformables where they are now, to draw over
+    for (Index i = 0; i < x.cols(); ++i)
+      if (s.particles().kind[i] != ParticleKind::kinematic && s.particles().kind[i] != ParticleKind::removed)
+        draw->AddCircleFilled(to_screen(x(across, i), x(1, i)), 1.5f, IM_COL32(170, 150, 120, 255));
+    for (const Vectors3& fiber : fibers)
+      for (Index i = 1; i < fiber.cols(); ++i)
+        draw->AddLine(to_screen(fiber(across, i - 1), fiber(1, i - 1)), to_screen(fiber(across, i), fiber(1, i)),
+                      IM_COL32(120, 200, 255, 255), 2.0f);
+    for (std::size_t i = 1; i < strokes[which].size(); ++i)
+      draw->AddLine(to_screen(strokes[which][i - 1].x(), strokes[which][i - 1].y()),
+                    to_screen(strokes[which][i].x(), strokes[which][i].y()), IM_COL32(255, 200, 80, 255), 2.0f);
+    ImGui::EndGroup();
+  }
+
+  void show(const System& s) {
+    ImGui::SetNextWindowPos(ImVec2(10, 330), ImGuiCond_FirstUseEver);
+    ImGui::Begin("draw a fiber");
+    view(0, 220.0f, s);
+    ImGui::SameLine();
+    view(1, 220.0f, s);
+    ImGui::SetNextItemWidth(120.0f);
+    ImGui::InputFloat("spacing [m]", &spacing, 0.0f, 0.0f, "%.4f");
+    if (ImGui::Button("make fiber")) {
+      try {
+        Eigen::Matrix2Xd front(2, strokes[0].size()), side(2, strokes[1].size());
+        for (std::size_t i = 0; i < strokes[0].size(); ++i) front.col(static_cast<Index>(i)) = strokes[0][i];
+        for (std::size_t i = 0; i < strokes[1].size(); ++i) side.col(static_cast<Index>(i)) = strokes[1][i];
+        fibers.push_back(fiber_from_strokes(front, side, spacing));
+        status = "fiber " + std::to_string(fibers.size()) + ": " + std::to_string(fibers.back().cols()) + " points";
+        strokes[0].clear();
+        strokes[1].clear();
+      } catch (const Error& e) {
+        status = e.what();
+      }
+    }
+    ImGui::SameLine();
+    if (ImGui::Button("clear strokes")) strokes[0].clear(), strokes[1].clear();
+    ImGui::SameLine();
+    if (ImGui::Button("save fibers.txt")) {
+      try {
+        write_fibers("fibers.txt", fibers);
+        status = "saved " + std::to_string(fibers.size()) + " fibers to fibers.txt";
+      } catch (const Error& e) {
+        status = e.what();
+      }
+    }
+    ImGui::TextWrapped("%s", status.c_str());
+    ImGui::End();
   }
 };
 
@@ -88,6 +191,7 @@ int main(int argc, char** argv) {
     overlays.parents = options.parents;
     render::Camera camera =
         render::framing_camera(render::picture_of(*session->scene, overlays), double(width) / height);
+    FiberPanel panel(session->scene->system());
     bool paused = false, step_once = false, follow = true;
     const double frame_dt = timing.frame_dt;
     int frame = 0;
@@ -185,6 +289,7 @@ int main(int argc, char** argv) {
       ImGui::Text(session->grabbed >= 0 ? "holding particle %lld" : "left-drag the cloth to grab it",
                   static_cast<long long>(session->grabbed));
       ImGui::End();
+      panel.show(s);
 
       if (reset) {
         session = std::make_unique<Session>(scene_name);

@@ -16,6 +16,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <random>
 #include <vector>
 
 namespace sinew {
@@ -397,7 +398,8 @@ TEST(FiberDrawing, TwoOrthogonalStrokesRebuildTheCurve) {
 }
 
 // The plain file: fibers and their points, comments and blank lines skipped; a malformed line, a
-// point before any fiber, a one-point fiber and a missing file are named.
+// point before any fiber, a one-point fiber and a missing file are named; write_fibers' files read
+// back to the bit.
 TEST(FiberDrawing, FiberFilesReadBackAndBadOnesAreNamed) {
   const std::filesystem::path dir = std::filesystem::temp_directory_path() / "sinew_fiber_files";
   std::filesystem::create_directories(dir);
@@ -422,6 +424,23 @@ TEST(FiberDrawing, FiberFilesReadBackAndBadOnesAreNamed) {
   says(write("early.txt", "0 0 0\nfiber\n"), "line 1: a point before the first 'fiber'");
   says(write("short.txt", "fiber\n0 0 0\nfiber\n0 0 0\n1 1 1\n"), "the fiber started on line 1 has 1 points");
   says((dir / "missing.txt").string(), "cannot read");
+  // What sinew-view's drawing panel saves reads back to the bit; a bad fiber is named, not written.
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::vector<Vectors3> drawn{Vectors3(3, 5), Vectors3(3, 2)};
+  for (Vectors3& fiber : drawn)
+    for (Index i = 0; i < fiber.cols(); ++i) fiber.col(i) = Vec3(u(rng), u(rng), u(rng)) / 3.0;
+  const std::string saved = (dir / "saved.txt").string();
+  write_fibers(saved, drawn);
+  const std::vector<Vectors3> back = read_fibers(saved);
+  ASSERT_EQ(back.size(), drawn.size());
+  for (std::size_t f = 0; f < drawn.size(); ++f) EXPECT_TRUE(back[f] == drawn[f]) << "fiber " << f;
+  try {
+    write_fibers((dir / "one.txt").string(), {Vectors3::Zero(3, 1)});
+    ADD_FAILURE() << "wrote a one-point fiber";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("fiber 0 has 1 points"), std::string::npos) << e.what();
+  }
   std::filesystem::remove_all(dir);
 }
 

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <fstream>
 #include <memory>
 #include <numbers>
@@ -205,6 +206,25 @@ std::vector<Vectors3> read_fibers(const std::string& path) {
   }
   close(line + 1);
   return fibers;
+}
+
+void write_fibers(const std::string& path, const std::vector<Vectors3>& fibers) {
+  for (std::size_t f = 0; f < fibers.size(); ++f) {
+    if (fibers[f].cols() < 2) fail("write_fibers: fiber ", f, " has ", fibers[f].cols(), " points, expected 2 or more");
+    if (!fibers[f].allFinite()) fail("write_fibers: fiber ", f, " has a non-finite point");
+  }
+  std::ofstream out(path);
+  if (!out) fail("write_fibers: cannot write '", path, "'");
+  out << "# fibers: a line 'fiber', then one 'x y z' line per point (sinew::read_fibers)\n";
+  char line[96];
+  for (const Vectors3& fiber : fibers) {
+    out << "fiber\n";
+    for (Index i = 0; i < fiber.cols(); ++i) {
+      std::snprintf(line, sizeof line, "%.17g %.17g %.17g\n", fiber(0, i), fiber(1, i), fiber(2, i));
+      out << line;
+    }
+  }
+  if (!out) fail("write_fibers: writing '", path, "' failed");
 }
 
 }  // namespace sinew

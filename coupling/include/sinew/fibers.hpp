@@ -61,4 +61,9 @@ Vectors3 fiber_from_strokes(const Eigen::Matrix2Xd& front, const Eigen::Matrix2X
 /// first `fiber`, or a polyline of fewer than two points; and a file that cannot be read.
 std::vector<Vectors3> read_fibers(const std::string& path);
 
+/// Writes fibers in read_fibers' format, every coordinate to 17 significant digits (read back to the
+/// bit): what sinew-view's drawing panel saves. Throws sinew::Error naming a fiber of fewer than two
+/// points or a non-finite point, or the file when it cannot be written.
+void write_fibers(const std::string& path, const std::vector<Vectors3>& fibers);
+
 }  // namespace sinew
