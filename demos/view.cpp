@@ -84,7 +84,7 @@ struct FiberPanel {
     ImGui::InvisibleButton(which == 0 ? "front" : "side", ImVec2(side, side));
     ImDrawList* draw = ImGui::GetWindowDrawList();
     draw->AddRectFilled(corner, ImVec2(corner.x + side, corner.y + side), IM_COL32(40, 40, 48, 255));
-    const double w = high(across) - low(across), h = high(1) - low(1), extent = std::max(w, h);
+    const double extent = (high - low).maxCoeff();  // one scale for both views: a height sits alike in each
     const auto to_screen = [&](double a, double y) {
       return ImVec2(corner.x + float((a - low(across)) / extent * side),
                     corner.y + float((high(1) - y) / extent * side));
@@ -93,11 +93,16 @@ struct FiberPanel {
       return Eigen::Vector2d(low(across) + (p.x - corner.x) / side * extent,
                              high(1) - (p.y - corner.y) / side * extent);
     };
-    if (ImGui::IsItemActive() && ImGui::IsMouseDown(0)) {
+    if (ImGui::IsItemActive() && ImGui::IsMouseDown(0) && ImGui::IsMousePosValid()) {
       if (ImGui::IsItemActivated()) strokes[which].clear();
       const Eigen::Vector2d p = to_world(ImGui::GetIO().MousePos);
-      if (strokes[which].empty() || (p - strokes[which].back()).norm() > 1e-3 * extent) strokes[which].push_back(p);
+      std::vector<Eigen::Vector2d>& stroke = strokes[which];
+      // A hand turns back by a pixel now and then: a point that reverses the stroke's direction in y
+      // is dropped (fiber_from_strokes needs strokes that run one way along y).
+      const bool reverses = stroke.size() >= 2 && (p.y() - stroke.back().y()) * (stroke[1].y() - stroke[0].y()) < 0.0;
+      if ((stroke.empty() || (p - stroke.back()).norm() > 1e-3 * extent) && !reverses) stroke.push_back(p);
     }
+    draw->PushClipRect(corner, ImVec2(corner.x + side, corner.y + side), true);
     const Vectors3& x = s.particles().x;  // the deformables where they are now, to draw over
     for (Index i = 0; i < x.cols(); ++i)
       if (s.particles().kind[i] != ParticleKind::kinematic && s.particles().kind[i] != ParticleKind::removed)
@@ -109,6 +114,7 @@ struct FiberPanel {
     for (std::size_t i = 1; i < strokes[which].size(); ++i)
       draw->AddLine(to_screen(strokes[which][i - 1].x(), strokes[which][i - 1].y()),
                     to_screen(strokes[which][i].x(), strokes[which][i].y()), IM_COL32(255, 200, 80, 255), 2.0f);
+    draw->PopClipRect();
     ImGui::EndGroup();
   }
 

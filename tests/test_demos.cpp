@@ -878,6 +878,31 @@ TEST(StalkDemo, TheFiberHoldsTheStalkUpUntilItBreaks) {
   EXPECT_TRUE(scene->system().particles().x.allFinite());
 }
 
+// Releasing the pot (Coupling::remove) while the stalk is bound to it: a massless point on the pot is
+// removed, the stalk's bound particles go free with their mass, the structure particles that hung
+// partly on the pot's frame points become plain point-cloud embeddings, and the stalk falls on, its
+// state finite, no binding left on the pot.
+TEST(StalkDemo, ReleasingThePotFreesTheStalk) {
+  auto scene = make_bullet_scene("stalk");
+  for (int f = 0; f < 10; ++f) scene->advance(1.0 / 60, scene->default_substeps());
+  ASSERT_GT(scene->system().hard_bindings().mixed().size(), 0);
+  btRigidBody* pot = nullptr;
+  for (btRigidBody* body : scene->bullet().bodies())
+    if (body->getInvMass() > 0.0) pot = body;
+  ASSERT_NE(pot, nullptr);
+  // A massless point on the pot goes with it (System::remove_particles, which the matrix and the
+  // fibers, touching no such point, let through).
+  const Index point = scene->coupling().add_body_point(pot, Vec3(0.0, 0.04, 0.0));
+  scene->advance(1.0 / 60, scene->default_substeps());
+  scene->coupling().remove(pot);
+  EXPECT_EQ(scene->system().particles().kind[point], ParticleKind::removed);
+  for (int f = 0; f < 20; ++f) scene->advance(1.0 / 60, scene->default_substeps());
+  EXPECT_EQ(scene->system().hard_bindings().mixed().size(), 0);
+  EXPECT_EQ(scene->system().hard_bindings().rigid_count(), 0);
+  EXPECT_LT(scene->hard_binding_drift(), 1e-12);
+  EXPECT_TRUE(scene->system().particles().x.allFinite());
+}
+
 // Figure 8 of the fibers paper: both stems are rooted in dynamic Bullet pots and carry Bullet heads.
 // After the same impulse the plain stem cannot carry its head (it falls below half its height) and
 // stretches along itself by more than 5%; the fibered one swings (more than 5 cm) and stands (its head

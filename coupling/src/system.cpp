@@ -220,10 +220,11 @@ void System::remove_elements_touching(std::span<const Index> particles) {
 
 void System::remove_elements_of(std::span<const std::uint8_t> removed) {
   for (const auto& f : m_forces)
-    if (!f->can_remove_elements())
+    if (!f->can_remove_elements() && f->touches(removed))
       fail(f->name(),
            ": cannot remove elements (it does not implement Force::remove_elements_touching); nothing was removed");
-  for (const auto& f : m_forces) f->remove_elements_touching(removed);
+  for (const auto& f : m_forces)
+    if (f->can_remove_elements()) f->remove_elements_touching(removed);
   m_force_stable_dt.clear();
 }
 

@@ -52,7 +52,7 @@ class Leaf final : public BulletScene {
                     "\"%s\": {\"material_particles\": %zu, \"structure_particles\": %lld, \"tip_sag\": %.5f, "
                     "\"blade_droop\": %.5f}, ",
                     leaf.name, leaf.body.material.size(), static_cast<long long>(leaf.body.structure_particles()),
-                    leaf.tip_start - tip.y(), midrib - edges - leaf.droop_start);
+                    leaf.tip_start - tip.y(), midrib - edges);
       text += part;
     }
     char part[160];
@@ -68,7 +68,7 @@ class Leaf final : public BulletScene {
   struct Blade {
     const char* name = "";
     FiberedLattice body;
-    double tip_start = 0.0, droop_start = 0.0;
+    double tip_start = 0.0;
   };
 
   void add_leaf(const char* name, double z0) {
@@ -116,7 +116,6 @@ class Leaf final : public BulletScene {
     add_surface(std::string(name), leaf.body.skin());
     const Vectors3& x = system().particles().x;
     leaf.tip_start = 0.5 * (x(1, leaf.body.at(kWide / 2, 0, kLong - 1)) + x(1, leaf.body.at(kWide / 2, 1, kLong - 1)));
-    leaf.droop_start = 0.0;
   }
 
   btRigidBody* m_twig = nullptr;

@@ -78,6 +78,12 @@ class Force {
   /// default throws.
   virtual Index remove_elements_touching(std::span<const std::uint8_t> removed);
   virtual bool can_remove_elements() const { return false; }
+  /// Whether any element has a node flagged in `removed`: a force that cannot remove elements stands
+  /// in the way of a removal only then. The default says yes (a force that does not know).
+  virtual bool touches(std::span<const std::uint8_t> removed) const {
+    (void)removed;
+    return true;
+  }
 
   /// Largest step for which the explicit treatment of this elastic force stays stable, from the
   /// stiffest element and the lightest particle it touches (masses m, infinite for kinematic or

@@ -38,6 +38,7 @@ class HardBindings {
   HardBindings(const HardBindings& other) { *this = other; }
   HardBindings(HardBindings&& other) noexcept { *this = std::move(other); }
   HardBindings& operator=(const HardBindings& other) {
+    if (this == &other) return *this;
     m_linear = other.m_linear;
     m_rigid = other.m_rigid;
     m_mixed = other.m_mixed;
@@ -48,6 +49,7 @@ class HardBindings {
     return *this;
   }
   HardBindings& operator=(HardBindings&& other) noexcept {
+    if (this == &other) return *this;
     m_linear = std::move(other.m_linear);
     m_rigid = std::move(other.m_rigid);
     m_mixed = std::move(other.m_mixed);

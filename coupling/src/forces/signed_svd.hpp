@@ -43,7 +43,7 @@ namespace sinew::detail {
 /// re-orthonormalised and made proper), U from F V by Gram-Schmidt (u2 = u0 x u1, so det U = +1), and
 /// sigma the diagonal of U^T F V, whose last entry then carries the sign of det F. The closed-form
 /// eigenvectors lose digits where two stretches nearly coincide: U diag(sigma) V^T then differs from
-/// F by up to about 1e-9 |F| (test_meshfree's ItsSignedSvdMatchesTheJacobiOne), round-off elsewhere,
+/// F by up to about 1e-8 |F| (test_meshfree's ItsSignedSvdMatchesTheJacobiOne), round-off elsewhere,
 /// and the stress U Phat V^T is the energy's derivative to that accuracy.
 inline SignedSvd signed_svd_from_eigen(const Mat3& F) {
   Eigen::SelfAdjointEigenSolver<Mat3> eig;

@@ -57,6 +57,11 @@ class MeshfreeCorotated final : public Force {
 
   std::string_view name() const override { return "meshfree corotated"; }
   void validate(Index particle_count) const override;
+  bool touches(std::span<const std::uint8_t> removed) const override {
+    for (const Index p : m_particles)
+      if (removed[static_cast<std::size_t>(p)]) return true;
+    return false;
+  }
   void update_position_state(const Vectors3& x) override;
   double potential_energy(const Vectors3& x) const override;
   void add_elastic_forces(const Vectors3& x, Vectors3& f) const override;
