@@ -1,4 +1,5 @@
 #include "bullet_scenes.hpp"
+#include "fibered.hpp"
 
 #include "sinew/fibers.hpp"
 
@@ -141,7 +142,12 @@ class Bars final : public BulletScene {
                                                     .implicit = true});
       for (const auto& fiber : embedded.fibers) bar.structure += fiber.size();
     }
-    add_surface(std::string(name), skin(bar));
+    // The lattice's outer faces: the fibers scenes' lattice layout, (i, j, k) at (k kN + j) kN + i.
+    FiberedLattice lattice;
+    lattice.nx = lattice.ny = kN;
+    lattice.nz = kLayers;
+    lattice.material = bar.material;
+    add_surface(std::string(name), lattice.skin());
   }
 
   // The layouts, in the bar's frame (x, z across, y up; u, w in [0, 1] across, t in [0, 1] up).
@@ -171,29 +177,6 @@ class Bars final : public BulletScene {
       lines.push_back(line);
     }
     return lines;
-  }
-
-  // The lattice's outer faces, two triangles each, outward.
-  std::vector<std::array<Index, 3>> skin(const Bar& bar) const {
-    std::vector<std::array<Index, 3>> out;
-    const auto quad = [&](Index a, Index b, Index c, Index d) {
-      out.push_back({a, b, c});
-      out.push_back({a, c, d});
-    };
-    const int last = kN - 1, top = kLayers - 1;
-    for (int k = 0; k < top; ++k)
-      for (int i = 0; i < last; ++i) {
-        quad(at(bar, i, 0, k), at(bar, i + 1, 0, k), at(bar, i + 1, 0, k + 1), at(bar, i, 0, k + 1));
-        quad(at(bar, i, last, k), at(bar, i, last, k + 1), at(bar, i + 1, last, k + 1), at(bar, i + 1, last, k));
-        quad(at(bar, 0, i, k), at(bar, 0, i, k + 1), at(bar, 0, i + 1, k + 1), at(bar, 0, i + 1, k));
-        quad(at(bar, last, i, k), at(bar, last, i + 1, k), at(bar, last, i + 1, k + 1), at(bar, last, i, k + 1));
-      }
-    for (int j = 0; j < last; ++j)
-      for (int i = 0; i < last; ++i) {
-        quad(at(bar, i, j, 0), at(bar, i, j + 1, 0), at(bar, i + 1, j + 1, 0), at(bar, i + 1, j, 0));
-        quad(at(bar, i, j, top), at(bar, i + 1, j, top), at(bar, i + 1, j + 1, top), at(bar, i, j + 1, top));
-      }
-    return out;
   }
 
   std::vector<Bar> m_bars;
