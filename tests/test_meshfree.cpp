@@ -247,6 +247,29 @@ TEST(MeshfreeCorotated, ACantileverBendsAsTimoshenkosBeam) {
   EXPECT_LT(std::abs(fine), 0.5 * std::abs(coarse));
 }
 
+// The work a step linearised at its start misses (turn_work_rate): none for an unstressed body however
+// it spins (to round-off), none for a stressed one at rest, and for a uniform stretch F = diag(1 + e, 1, 1) spun at w
+// about z (v = w z x x, so Fdot = [w]x F), 1/2 sum_k V_k (2 mu + lambda) e |w_k|^2 with w_k the axial
+// vector of skew(Fdot) (R = I), w (1 + e / 2): an analytic value.
+TEST(MeshfreeCorotated, ItsTurnWorkRateFollowsStressAndSpin) {
+  std::mt19937 rng(7);
+  const double s = 0.01, E = 1e5, nu = 0.3, e = 0.05, w = 3.0;
+  const Vectors3 X = lattice(4, 4, 4, s, 0.2, rng);
+  const MeshfreeCorotated matrix(all(X.cols()), X, std::vector<double>(static_cast<std::size_t>(X.cols()), s * s * s),
+                                 {.support_radius = 2.5 * s, .young_modulus = E, .poisson_ratio = nu});
+  Vectors3 spin(3, X.cols()), stretched = X, stretched_spin(3, X.cols());
+  for (Index i = 0; i < X.cols(); ++i) {
+    stretched(0, i) *= 1.0 + e;
+    spin.col(i) = Vec3(0, 0, w).cross(Vec3(X.col(i)));
+    stretched_spin.col(i) = Vec3(0, 0, w).cross(Vec3(stretched.col(i)));
+  }
+  const double mu = E / (2 * (1 + nu)), lambda = E * nu / ((1 + nu) * (1 - 2 * nu));
+  const double expected = 0.5 * double(X.cols()) * s * s * s * (2 * mu + lambda) * e * std::pow(w * (1 + e / 2), 2);
+  EXPECT_LT(matrix.turn_work_rate(X, spin), 1e-12 * expected);  // round-off stress at rest
+  EXPECT_EQ(matrix.turn_work_rate(stretched, Vectors3::Zero(3, X.cols())), 0.0);
+  EXPECT_NEAR(matrix.turn_work_rate(stretched, stretched_spin), expected, 1e-9 * expected);
+}
+
 // The matrix's signed SVD from the eigenvectors of F^T F against Eigen's Jacobi SVD (signed_svd), on
 // stretched, turned, inverted, nearly singular, singular and repeated-stretch F: U and V proper
 // rotations to round-off; sigma in decreasing order with only the last negative (for det F < 0), the

@@ -305,6 +305,36 @@ void ElasticRods::add_implicit_products(const Vectors3& v, double b, Vectors3& f
   add_hinge_products(v, b, false, f);
 }
 
+// What the step's linearisation misses (Force::turn_work_rate), as EdgeSprings counts it: an edge of
+// tension (or compression) T and length l turning at rate w misses T l w^2 / 2 per squared step (its
+// geometric stiffness, which the clamped differential leaves out); a hinge whose moment
+// dE/dpsi = 2 EI (psi - psibar) / Lbar acts through edges turning at w_e and w_f misses about
+// |dE/dpsi| (w_e^2 + w_f^2) / 2 (the Gauss-Newton differential leaves out dE/dpsi times psi's
+// second derivative, of order 1 / l^2 per edge).
+double ElasticRods::turn_work_rate(const Vectors3& x, const Vectors3& v) const {
+  const auto turn_sq = [&](Index a, Index b, double& length) {
+    const Vec3 d = x.col(b) - x.col(a);
+    length = d.norm();
+    if (!(length > 0.0)) return 0.0;
+    const Vec3 u = d / length;
+    const Vec3 dv = v.col(b) - v.col(a);
+    return (dv - u * u.dot(dv)).squaredNorm() / (length * length);
+  };
+  double sum = 0.0;
+  for (const Edge& e : m_edges) {
+    double length = 0.0;
+    const double w_sq = turn_sq(e.a, e.b, length);
+    sum += 0.5 * std::abs(m_settings.stretch_stiffness * (length - e.rest) / e.rest) * length * w_sq;
+  }
+  for (const Hinge& h : m_hinges) {
+    const double psi = geometry(x.col(h.a), x.col(h.b), x.col(h.c), h.e_rest, h.f_rest).psi;
+    const double moment = 2.0 * m_settings.bending_stiffness * std::abs(psi - h.psi_rest) / (h.e_rest + h.f_rest);
+    double length = 0.0;
+    sum += 0.5 * moment * (turn_sq(h.a, h.b, length) + turn_sq(h.b, h.c, length));
+  }
+  return sum;
+}
+
 // At rest, per edge x^T K x <= EA / |ebar| |de|^2 <= EA / |ebar| (1/m_a + 1/m_b) |x|_M^2; per hinge
 // (straight) K = (2 EI / Lbar) J^T J with |dkappa| <= |de| / |ebar| + |df| / |fbar|, so
 // |dkappa|^2 <= 2 (|de|^2 / |ebar|^2 + |df|^2 / |fbar|^2) and |de|^2 <= 2 (|dx_a|^2 + |dx_b|^2).

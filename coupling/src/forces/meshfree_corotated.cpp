@@ -326,6 +326,23 @@ double MeshfreeCorotated::hourglass_energy(const Vectors3& x) const {
   return energy;
 }
 
+// What the step's linearisation misses (Force::turn_work_rate), as EdgeSprings counts it for a
+// spring (tension times length, T l w^2 / 2 per squared step): particle k's stress, V_k phi_k times
+// its largest principal stress |phat|, times half its material's squared turning rate w_k, the axial
+// vector of skew(Fdot_k R_k^T) (Fdot_k the velocity's gradient through the same stencil as F_k).
+double MeshfreeCorotated::turn_work_rate(const Vectors3& x, const Vectors3& v) const {
+  double sum = 0.0;
+  for (std::size_t k = 0; k < m_particles.size(); ++k) {
+    const detail::SignedSvd svd = detail::signed_svd_from_eigen(gradient_of(x, k));
+    const double stress = corotated_diagonal_stress(svd.sigma, m_mu, m_lambda).cwiseAbs().maxCoeff();
+    if (!(stress > 0.0)) continue;
+    const Mat3 spin = gradient_of(v, k) * (svd.U * svd.V.transpose()).transpose();
+    const Vec3 w(0.5 * (spin(2, 1) - spin(1, 2)), 0.5 * (spin(0, 2) - spin(2, 0)), 0.5 * (spin(1, 0) - spin(0, 1)));
+    sum += 0.5 * m_volume[k] * m_fraction[k] * stress * w.squaredNorm();
+  }
+  return sum;
+}
+
 // Per stencil k (the particle and its neighbours), as element_bound_stable_dt: at rest
 //   dx^T K_k dx <= V_k (2 mu + 3 lambda+) |dF_k|^2 + alpha mu sum_j w_kj |dr_kj|^2
 // (2 mu |sym dF|^2 + lambda tr(dF)^2, and tr(dF)^2 <= 3 |dF|^2),
