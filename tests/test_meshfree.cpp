@@ -250,7 +250,8 @@ TEST(MeshfreeCorotated, ACantileverBendsAsTimoshenkosBeam) {
 // The work a step linearised at its start misses (turn_work_rate): none for an unstressed body however
 // it spins (to round-off), none for a stressed one at rest, and for a uniform stretch F = diag(1 + e, 1, 1) spun at w
 // about z (v = w z x x, so Fdot = [w]x F), 1/2 sum_k V_k (2 mu + lambda) e |w_k|^2 with w_k the axial
-// vector of skew(Fdot) (R = I), w (1 + e / 2): an analytic value.
+// vector of skew(Fdot) (R = I), w (1 + e / 2): an analytic value. The stretch of moving along tangents
+// follows the spin alone.
 TEST(MeshfreeCorotated, ItsTurnWorkRateFollowsStressAndSpin) {
   std::mt19937 rng(7);
   const double s = 0.01, E = 1e5, nu = 0.3, e = 0.05, w = 3.0;
@@ -268,6 +269,10 @@ TEST(MeshfreeCorotated, ItsTurnWorkRateFollowsStressAndSpin) {
   EXPECT_LT(matrix.turn_work_rate(X, spin), 1e-12 * expected);  // round-off stress at rest
   EXPECT_EQ(matrix.turn_work_rate(stretched, Vectors3::Zero(3, X.cols())), 0.0);
   EXPECT_NEAR(matrix.turn_work_rate(stretched, stretched_spin), expected, 1e-9 * expected);
+  // Moved along tangents, the spun block is stretched by (w dt)^2 / 2 across w: V (mu + lambda) / 2 w^4
+  // per particle and dt^4 (turn_stretch_rate), whatever its stress.
+  const double stretch = 0.5 * double(X.cols()) * s * s * s * (mu + lambda) * std::pow(w, 4);
+  EXPECT_NEAR(matrix.turn_stretch_rate(X, spin), stretch, 1e-9 * stretch);
 }
 
 // The matrix's signed SVD from the eigenvectors of F^T F against Eigen's Jacobi SVD (signed_svd), on

@@ -100,6 +100,14 @@ class Force {
     (void)x, (void)v;
     return 0.0;
   }
+  /// What moving along tangents instead of arcs stores in the force's elements over a step, per fourth
+  /// power of the step [J/s^4]: an element of stiffness k and size l turning at rate w is stretched by
+  /// l (w dt)^2 / 2, which stores k l^2 w^4 dt^4 / 8 even where it had no stress to turn. Summed over
+  /// the elements at x with velocities v; 0 when they have no direction to turn.
+  virtual double turn_stretch_rate(const Vectors3& x, const Vectors3& v) const {
+    (void)x, (void)v;
+    return 0.0;
+  }
 
   /// Whether the force can offer a definite differential when asked to (offer_definite_differentials)
   /// although its own settings keep it explicit.

@@ -141,7 +141,9 @@ struct StepSettings {
   /// stretched spring that turns within the step is then pulled along a stale direction, which feeds
   /// energy into a spinning cloth. advance() under `automatic` takes substeps short enough that this
   /// missed work (Force::turn_work_rate times the squared step) is at most this fraction of the
-  /// scene's kinetic and elastic energy in each step.
+  /// scene's kinetic and elastic energy in each step; so is the energy that moving along tangents
+  /// instead of arcs stores in elements that had no stress to turn (Force::turn_stretch_rate times
+  /// the fourth power of the step).
   double turn_work_per_implicit_step = 0.01;
   /// Under `automatic`, the solves of the scheme advance() chose stop (cg_rms_tolerance) at this
   /// fraction of a substep's velocity change a dt, a the last frame's RMS acceleration (|gravity|

@@ -335,6 +335,21 @@ double ElasticRods::turn_work_rate(const Vectors3& x, const Vectors3& v) const {
   return sum;
 }
 
+// Force::turn_stretch_rate: an edge of stiffness EA / |ebar| and length l turning at w is stretched by
+// l (w dt)^2 / 2 along tangents, storing EA l^2 w^4 dt^4 / (8 |ebar|).
+double ElasticRods::turn_stretch_rate(const Vectors3& x, const Vectors3& v) const {
+  double sum = 0.0;
+  for (const Edge& e : m_edges) {
+    const Vec3 d = x.col(e.b) - x.col(e.a);
+    const double length_sq = d.squaredNorm();
+    if (!(length_sq > 0.0)) continue;
+    const Vec3 dv = v.col(e.b) - v.col(e.a);
+    const double w_sq = (dv - d * (d.dot(dv) / length_sq)).squaredNorm() / length_sq;
+    sum += m_settings.stretch_stiffness * length_sq * w_sq * w_sq / (8.0 * e.rest);
+  }
+  return sum;
+}
+
 // At rest, per edge x^T K x <= EA / |ebar| |de|^2 <= EA / |ebar| (1/m_a + 1/m_b) |x|_M^2; per hinge
 // (straight) K = (2 EI / Lbar) J^T J with |dkappa| <= |de| / |ebar| + |df| / |fbar|, so
 // |dkappa|^2 <= 2 (|de|^2 / |ebar|^2 + |df|^2 / |fbar|^2) and |de|^2 <= 2 (|dx_a|^2 + |dx_b|^2).

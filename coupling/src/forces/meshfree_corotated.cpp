@@ -343,6 +343,22 @@ double MeshfreeCorotated::turn_work_rate(const Vectors3& x, const Vectors3& v) c
   return sum;
 }
 
+// Force::turn_stretch_rate: particle k's material turning at w_k (as above) and moved along tangents
+// is stretched by (w_k dt)^2 / 2 across w_k, a strain eps (I - n n^T) with eps = (w_k dt)^2 / 2, whose
+// energy V_k phi_k (mu |strain|^2 + lambda / 2 tr^2) is V_k phi_k (mu + lambda) / 2 |w_k|^4 dt^4
+// (lambda taken at least 0).
+double MeshfreeCorotated::turn_stretch_rate(const Vectors3& x, const Vectors3& v) const {
+  const double modulus = 0.5 * (m_mu + std::max(m_lambda, 0.0));
+  double sum = 0.0;
+  for (std::size_t k = 0; k < m_particles.size(); ++k) {
+    const detail::SignedSvd svd = detail::signed_svd_from_eigen(gradient_of(x, k));
+    const Mat3 spin = gradient_of(v, k) * (svd.U * svd.V.transpose()).transpose();
+    const Vec3 w(0.5 * (spin(2, 1) - spin(1, 2)), 0.5 * (spin(0, 2) - spin(2, 0)), 0.5 * (spin(1, 0) - spin(0, 1)));
+    sum += m_volume[k] * m_fraction[k] * modulus * w.squaredNorm() * w.squaredNorm();
+  }
+  return sum;
+}
+
 // Per stencil k (the particle and its neighbours), as element_bound_stable_dt: at rest
 //   dx^T K_k dx <= V_k (2 mu + 3 lambda+) |dF_k|^2 + alpha mu sum_j w_kj |dr_kj|^2
 // (2 mu |sym dF|^2 + lambda tr(dF)^2, and tr(dF)^2 <= 3 |dF|^2),

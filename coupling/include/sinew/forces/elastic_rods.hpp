@@ -62,6 +62,7 @@ class ElasticRods final : public Force {
   void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
   double stable_dt(const VectorXd& m_eff) const override;
   double turn_work_rate(const Vectors3& x, const Vectors3& v) const override;
+  double turn_stretch_rate(const Vectors3& x, const Vectors3& v) const override;
 
   const std::vector<std::vector<Index>>& fibers() const { return m_fibers; }
   /// The energy of fiber k's stretching and bending terms at x.

@@ -75,6 +75,7 @@ class MeshfreeCorotated final : public Force {
   /// Gershgorin bound on the rest stiffness against each particle's mass.
   double stable_dt(const VectorXd& m_eff) const override;
   double turn_work_rate(const Vectors3& x, const Vectors3& v) const override;
+  double turn_stretch_rate(const Vectors3& x, const Vectors3& v) const override;
 
   const std::vector<Index>& particles() const { return m_particles; }
   /// The deformation gradient of material particle k (in `particles`' order) at the cached state.
