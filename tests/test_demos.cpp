@@ -881,7 +881,7 @@ TEST(StalkDemo, TheFiberHoldsTheStalkUpUntilItBreaks) {
 // The same stalk at one 1/60 s step a frame (a Bullet tick each): the implicit matrix and fiber,
 // linearised at each step's start, turn fast as the broken stalk falls, and the automatic scheme takes
 // substeps that keep the work the linearisation misses small (MeshfreeCorotated's and ElasticRods'
-// turn_work_rate). Without them the fallen stalk's energy rose 60% above the break's within 200
+// turn_work_rate). Without them the fallen stalk's energy rose 61% above the break's within 200
 // frames and it was still thrashing (velocity RMS 0.57 m/s); with them it settles (0.008) and rises
 // by 4.3% at most (the falling stalk meeting the pot and the ground within one step, left for the
 // contact work).

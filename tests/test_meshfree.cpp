@@ -251,13 +251,17 @@ TEST(MeshfreeCorotated, ACantileverBendsAsTimoshenkosBeam) {
 // it spins (to round-off), none for a stressed one at rest, and for a uniform stretch F = diag(1 + e, 1, 1) spun at w
 // about z (v = w z x x, so Fdot = [w]x F), 1/2 sum_k V_k (2 mu + lambda) e |w_k|^2 with w_k the axial
 // vector of skew(Fdot) (R = I), w (1 + e / 2): an analytic value. The stretch of moving along tangents
-// follows the spin alone.
+// follows the spin alone. Turned as a whole, the block misses the same; explicit, nothing.
 TEST(MeshfreeCorotated, ItsTurnWorkRateFollowsStressAndSpin) {
   std::mt19937 rng(7);
   const double s = 0.01, E = 1e5, nu = 0.3, e = 0.05, w = 3.0;
   const Vectors3 X = lattice(4, 4, 4, s, 0.2, rng);
-  const MeshfreeCorotated matrix(all(X.cols()), X, std::vector<double>(static_cast<std::size_t>(X.cols()), s * s * s),
-                                 {.support_radius = 2.5 * s, .young_modulus = E, .poisson_ratio = nu});
+  const std::vector<double> volumes(static_cast<std::size_t>(X.cols()), s * s * s);
+  const MeshfreeCorotated matrix(
+      all(X.cols()), X, volumes,
+      {.support_radius = 2.5 * s, .young_modulus = E, .poisson_ratio = nu, .implicit = true});
+  const MeshfreeCorotated explicit_matrix(all(X.cols()), X, volumes,
+                                          {.support_radius = 2.5 * s, .young_modulus = E, .poisson_ratio = nu});
   Vectors3 spin(3, X.cols()), stretched = X, stretched_spin(3, X.cols());
   for (Index i = 0; i < X.cols(); ++i) {
     stretched(0, i) *= 1.0 + e;
@@ -273,6 +277,17 @@ TEST(MeshfreeCorotated, ItsTurnWorkRateFollowsStressAndSpin) {
   // per particle and dt^4 (turn_stretch_rate), whatever its stress.
   const double stretch = 0.5 * double(X.cols()) * s * s * s * (mu + lambda) * std::pow(w, 4);
   EXPECT_NEAR(matrix.turn_stretch_rate(X, spin), stretch, 1e-9 * stretch);
+  // The same stretched block turned by Q and spun about Q z: F = Q D, R = Q, the same rates.
+  const Mat3 Q = Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized()).toRotationMatrix();
+  Vectors3 turned(3, X.cols()), turned_spin(3, X.cols());
+  for (Index i = 0; i < X.cols(); ++i) {
+    turned.col(i) = Q * stretched.col(i);
+    turned_spin.col(i) = (Q * Vec3(0, 0, w)).cross(Vec3(turned.col(i)));
+  }
+  EXPECT_NEAR(matrix.turn_work_rate(turned, turned_spin), expected, 1e-9 * expected);
+  // An explicit matrix is not linearised: nothing missed.
+  EXPECT_EQ(explicit_matrix.turn_work_rate(stretched, stretched_spin), 0.0);
+  EXPECT_EQ(explicit_matrix.turn_stretch_rate(X, spin), 0.0);
 }
 
 // The matrix's signed SVD from the eigenvectors of F^T F against Eigen's Jacobi SVD (signed_svd), on

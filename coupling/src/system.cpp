@@ -590,15 +590,18 @@ int System::turn_substeps(double frame_dt, double energy) {
   // substeps = ceil(frame_dt sqrt(S / (eta E))).
   // Moving along tangents also stretches elements that had no stress to turn, dt^4 Q
   // (Force::turn_stretch_rate): substeps = ceil(frame_dt (Q / (eta E))^(1/4)) bound that alike.
+  // A scene with no kinetic or elastic energy has nothing to turn (its particles may still move
+  // against kinematic ones): no bound then. A rate that is not a number bounds nothing either.
   double rate = 0.0, stretch = 0.0;
   for (const auto& f : m_forces) {
     rate += f->turn_work_rate(m_particles.x, m_particles.v);
     stretch += f->turn_stretch_rate(m_particles.x, m_particles.v);
   }
-  if (!(rate > 0.0) && !(stretch > 0.0)) return 1;
   const double allowed = m_step_settings.turn_work_per_implicit_step * energy;
-  const double count = std::max(std::ceil(frame_dt * std::sqrt(rate / allowed)),
-                                std::ceil(frame_dt * std::sqrt(std::sqrt(stretch / allowed))));
+  if (!(allowed > 0.0)) return 1;
+  double count = 1.0;
+  if (rate > 0.0) count = std::max(count, std::ceil(frame_dt * std::sqrt(rate / allowed)));
+  if (stretch > 0.0) count = std::max(count, std::ceil(frame_dt * std::sqrt(std::sqrt(stretch / allowed))));
   if (!(count <= m_step_settings.max_substeps)) return m_step_settings.max_substeps;
   return std::max(1, static_cast<int>(count));
 }

@@ -305,47 +305,53 @@ void ElasticRods::add_implicit_products(const Vectors3& v, double b, Vectors3& f
   add_hinge_products(v, b, false, f);
 }
 
+// An edge's squared turning rate |dv_perp|^2 / l^2, l its length (not below its rest length: a
+// crumpled edge cannot turn faster than its neighbours carry it); `length` is set to l.
+double ElasticRods::edge_turn_sq(const Vectors3& x, const Vectors3& v, Index a, Index b, double rest,
+                                 double& length) const {
+  const Vec3 d = x.col(b) - x.col(a);
+  const double actual = d.norm();
+  length = std::max(actual, rest);
+  if (!(actual > 0.0)) return 0.0;
+  const Vec3 u = d / actual;
+  const Vec3 dv = v.col(b) - v.col(a);
+  return (dv - u * u.dot(dv)).squaredNorm() / (length * length);
+}
+
 // What the step's linearisation misses (Force::turn_work_rate), as EdgeSprings counts it: an edge of
 // tension (or compression) T and length l turning at rate w misses T l w^2 / 2 per squared step (its
 // geometric stiffness, which the clamped differential leaves out); a hinge whose moment
 // dE/dpsi = 2 EI (psi - psibar) / Lbar acts through edges turning at w_e and w_f misses about
 // |dE/dpsi| (w_e^2 + w_f^2) / 2 (the Gauss-Newton differential leaves out dE/dpsi times psi's
-// second derivative, of order 1 / l^2 per edge).
+// second derivative, of order 1 / l^2 per edge). Explicit rods linearise nothing: 0.
 double ElasticRods::turn_work_rate(const Vectors3& x, const Vectors3& v) const {
-  const auto turn_sq = [&](Index a, Index b, double& length) {
-    const Vec3 d = x.col(b) - x.col(a);
-    length = d.norm();
-    if (!(length > 0.0)) return 0.0;
-    const Vec3 u = d / length;
-    const Vec3 dv = v.col(b) - v.col(a);
-    return (dv - u * u.dot(dv)).squaredNorm() / (length * length);
-  };
+  if (!m_settings.implicit) return 0.0;  // explicit: nothing linearised
   double sum = 0.0;
   for (const Edge& e : m_edges) {
     double length = 0.0;
-    const double w_sq = turn_sq(e.a, e.b, length);
-    sum += 0.5 * std::abs(m_settings.stretch_stiffness * (length - e.rest) / e.rest) * length * w_sq;
+    const double w_sq = edge_turn_sq(x, v, e.a, e.b, e.rest, length);
+    const double actual = (x.col(e.b) - x.col(e.a)).norm();
+    sum += 0.5 * std::abs(m_settings.stretch_stiffness * (actual - e.rest) / e.rest) * length * w_sq;
   }
   for (const Hinge& h : m_hinges) {
     const double psi = geometry(x.col(h.a), x.col(h.b), x.col(h.c), h.e_rest, h.f_rest).psi;
     const double moment = 2.0 * m_settings.bending_stiffness * std::abs(psi - h.psi_rest) / (h.e_rest + h.f_rest);
     double length = 0.0;
-    sum += 0.5 * moment * (turn_sq(h.a, h.b, length) + turn_sq(h.b, h.c, length));
+    sum += 0.5 * moment *
+           (edge_turn_sq(x, v, h.a, h.b, h.e_rest, length) + edge_turn_sq(x, v, h.b, h.c, h.f_rest, length));
   }
   return sum;
 }
 
 // Force::turn_stretch_rate: an edge of stiffness EA / |ebar| and length l turning at w is stretched by
-// l (w dt)^2 / 2 along tangents, storing EA l^2 w^4 dt^4 / (8 |ebar|).
+// l (w dt)^2 / 2 along tangents, storing EA l^2 w^4 dt^4 / (8 |ebar|) (l and w as edge_turn_sq has them).
 double ElasticRods::turn_stretch_rate(const Vectors3& x, const Vectors3& v) const {
+  if (!m_settings.implicit) return 0.0;
   double sum = 0.0;
   for (const Edge& e : m_edges) {
-    const Vec3 d = x.col(e.b) - x.col(e.a);
-    const double length_sq = d.squaredNorm();
-    if (!(length_sq > 0.0)) continue;
-    const Vec3 dv = v.col(e.b) - v.col(e.a);
-    const double w_sq = (dv - d * (d.dot(dv) / length_sq)).squaredNorm() / length_sq;
-    sum += m_settings.stretch_stiffness * length_sq * w_sq * w_sq / (8.0 * e.rest);
+    double length = 0.0;
+    const double w_sq = edge_turn_sq(x, v, e.a, e.b, e.rest, length);
+    sum += m_settings.stretch_stiffness * length * length * w_sq * w_sq / (8.0 * e.rest);
   }
   return sum;
 }

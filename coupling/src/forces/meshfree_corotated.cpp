@@ -329,8 +329,10 @@ double MeshfreeCorotated::hourglass_energy(const Vectors3& x) const {
 // What the step's linearisation misses (Force::turn_work_rate), as EdgeSprings counts it for a
 // spring (tension times length, T l w^2 / 2 per squared step): particle k's stress, V_k phi_k times
 // its largest principal stress |phat|, times half its material's squared turning rate w_k, the axial
-// vector of skew(Fdot_k R_k^T) (Fdot_k the velocity's gradient through the same stencil as F_k).
+// vector of skew(Fdot_k R_k^T) (Fdot_k the velocity's gradient through the same stencil as F_k). An
+// explicit matrix linearises nothing: 0 (and for turn_stretch_rate below).
 double MeshfreeCorotated::turn_work_rate(const Vectors3& x, const Vectors3& v) const {
+  if (!m_settings.implicit) return 0.0;  // explicit: nothing linearised
   double sum = 0.0;
   for (std::size_t k = 0; k < m_particles.size(); ++k) {
     const detail::SignedSvd svd = detail::signed_svd_from_eigen(gradient_of(x, k));
@@ -348,6 +350,7 @@ double MeshfreeCorotated::turn_work_rate(const Vectors3& x, const Vectors3& v) c
 // energy V_k phi_k (mu |strain|^2 + lambda / 2 tr^2) is V_k phi_k (mu + lambda) / 2 |w_k|^4 dt^4
 // (lambda taken at least 0).
 double MeshfreeCorotated::turn_stretch_rate(const Vectors3& x, const Vectors3& v) const {
+  if (!m_settings.implicit) return 0.0;
   const double modulus = 0.5 * (m_mu + std::max(m_lambda, 0.0));
   double sum = 0.0;
   for (std::size_t k = 0; k < m_particles.size(); ++k) {

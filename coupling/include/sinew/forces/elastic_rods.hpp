@@ -96,6 +96,7 @@ class ElasticRods final : public Force {
   void add_hinge_products(const Vectors3& dx, double scale, bool exact, Vectors3& out) const;
   double edge_energy(const Edge& e, const Vectors3& x) const;
   double hinge_energy(const Hinge& h, const Vectors3& x) const;
+  double edge_turn_sq(const Vectors3& x, const Vectors3& v, Index a, Index b, double rest, double& length) const;
 
   std::vector<std::vector<Index>> m_fibers;
   ElasticRodsSettings m_settings;
