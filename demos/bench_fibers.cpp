@@ -195,7 +195,7 @@ Run cantilever(double dt, bool implicit) {
   for (int s = 0; s < samples; ++s) {
     for (int n = 0; n < per_sample; ++n) {
       const StepStats stats = bar.system.step(step);
-      run.cg += stats.cg_iterations_step1 + stats.cg_iterations_step4;
+      run.cg += stats.cg_iterations_step1 + stats.cg_iterations_step3 + stats.cg_iterations_step4;
     }
     run.heights.push_back(bar.end_height() - y0);
   }

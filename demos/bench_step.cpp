@@ -84,7 +84,7 @@ int main(int argc, char** argv) {
       for (int i = 0; i < steps; ++i) {
         const StepStats s = scene.system.step(dt);
         sum += s.ms;
-        cg += s.cg_iterations_step1 + s.cg_iterations_step4;
+        cg += s.cg_iterations_step1 + s.cg_iterations_step3 + s.cg_iterations_step4;
       }
       total.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count() /
                       steps);

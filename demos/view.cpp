@@ -282,8 +282,9 @@ int main(int argc, char** argv) {
                   st.ms.advance_positions, st.ms.process_collisions, st.ms.backward_euler_velocity,
                   st.ms.extrapolate_velocity);
       ImGui::Text("  forces %.3f ms, CG %.3f ms", st.ms.forces, st.ms.cg);
-      ImGui::Text("CG iterations: %d + %d, residual %.1e%s", st.cg_iterations_step1, st.cg_iterations_step4,
-                  st.cg_residual, st.cg_converged ? "" : " (not converged)");
+      ImGui::Text("CG iterations: %d + %d + %d (steps 1, 3, 4), residual %.1e%s", st.cg_iterations_step1,
+                  st.cg_iterations_step3, st.cg_iterations_step4, st.cg_residual,
+                  st.cg_converged ? "" : " (not converged)");
       ImGui::Text("hard-binding drift: %.2e m", session->scene->hard_binding_drift());
       double stretch = 0.0;  // the scene's springs, not the mouse spring
       for (Index k = 0; k < s.binding_springs().size(); ++k)

@@ -174,7 +174,7 @@ void Constraints::project(GeneralizedVector& u) const {
 
 void Constraints::project_constraints(GeneralizedVector& u) const {
   for (Index b = 0; b < m_unknowns->r; ++b)
-    if (!m_unknowns->dynamic_body[b]) u.rigid.col(b).setZero();
+    if (m_hold_bodies || !m_unknowns->dynamic_body[b]) u.rigid.col(b).setZero();
   for (std::size_t k : m_single) shift(m_collisions[k], u, 0.0);
   project_collision_groups(u, false);
   project_joint_groups(u, false);
@@ -210,6 +210,10 @@ void Constraints::shift(const CollisionConstraint& c, GeneralizedVector& u, doub
 // Each joint group's twists u_g -> u_g - Q Q^T u_g (the rows' null space), plus the particular
 // solution when the rows' targets are imposed; in scratch kept between steps (no allocation).
 void Constraints::project_joint_groups(GeneralizedVector& u, bool impose_targets) const {
+  if (m_hold_bodies) {
+    u.rigid.setZero();
+    return;
+  }
   for (std::size_t gi = 0; gi < m_joint_group_count; ++gi) {
     const JointGroup& g = m_joint_groups[gi];
     const Index k = static_cast<Index>(g.bodies.size());

@@ -48,6 +48,9 @@ class Constraints {
   void impose_collisions(GeneralizedVector& u) const;
   /// Sets the joint rows' components of the rigid twists in u to their targets (the rest is kept).
   void impose_joints(GeneralizedVector& u) const { project_joint_groups(u, true); }
+  /// While on, every rigid twist is held at zero (a solve over the particles alone, with the bodies
+  /// where they are: Newmark::spread_collisions).
+  void hold_bodies(bool on) { m_hold_bodies = on; }
 
  private:
   void project_joint_groups(GeneralizedVector& u, bool impose_targets) const;
@@ -58,6 +61,7 @@ class Constraints {
   void project_collision_groups(GeneralizedVector& u, bool impose_targets) const;
 
   const Unknowns* m_unknowns = nullptr;
+  bool m_hold_bodies = false;
   std::vector<CollisionConstraint> m_collisions;
   // Collision constraints alone on their particles (indices into m_collisions), and groups of those
   // that share particles, each with an orthonormal basis of its rows and the least-norm velocities on

@@ -35,9 +35,12 @@ class Newmark {
   // The five steps of section 3.3, in order.
   void implicit_half_velocity(const StepModel& s, double dt, StepStats& stats);   // 1: eq. 6-8
   void advance_positions(const StepModel& s, double dt);                          // 2
-  void process_collisions(const StepModel& s, double dt);                         // 3
+  void process_collisions(const StepModel& s, double dt, StepStats& stats);       // 3
   void backward_euler_velocity(const StepModel& s, double dt, StepStats& stats);  // 4
   void extrapolate_velocity(const StepModel& s);                                  // 5
+  /// Step 3's end (StepSettings::spread_collisions): the rest of the deformables follow what the
+  /// collision sources moved, through step 1's operator (see newmark.cpp).
+  void spread_collisions(const StepModel& s, double dt, StepStats& stats);
   /// Step 5's end: stiff damped binding springs' ends move together (see newmark.cpp).
   void settle_stiff_binding_springs(const StepModel& s);
   // Contacts between rigid bodies (unilateral joint rows, see "Contacts" in newmark.cpp).
@@ -76,6 +79,9 @@ class Newmark {
   static constexpr int kSettlePasses = 4;
   /// Step 1 is solved again while its contacts' active set changes, at most this many times in all.
   static constexpr int kContactPasses = 4;
+  /// spread_collisions solves again while the rows it lets go or holds again change, at most this
+  /// many times in all.
+  static constexpr int kSpreadPasses = 4;
   /// Gauss-Seidel passes at the step's end when rigid bodies touch (contacts with friction, with the
   /// springs' settling and the joints): a box sliding on four corners needs about this many to keep
   /// friction's torque from tipping it.
@@ -121,6 +127,19 @@ class Newmark {
   ImplicitSystem m_system;
   ConjugateGradients m_cg;
   Vectors3 m_x_n, m_v_n, m_x_np1, m_v_tilde_n, m_v_half;
+  // spread_collisions: x~^{n+1} before step 3's sources, step 3's constraints while the spread holds
+  // its own, the spread's answer and its imposed part, a zero right-hand side, per row: in a constraint.
+  Vectors3 m_x_predicted, m_spread_imposed;
+  std::vector<CollisionConstraint> m_step3_constraints;
+  struct SpreadRow {
+    CollisionConstraint row;
+    Index owner;  // a tangent row: the index of its point's normal row; else -1
+    bool active;
+  };
+  std::vector<SpreadRow> m_spread_rows;
+  std::vector<std::size_t> m_spread_active;  // the rows in the constraints, in order
+  GeneralizedVector m_spread, m_spread_rhs;
+  std::vector<std::uint8_t> m_spread_held;
   Vectors3 m_f, m_g;
   Vectors3 m_bound_force;  // force on each hard-bound row before W^T, from the last step 4
   Vectors6 m_wrench;

@@ -30,6 +30,7 @@ StepStats& StepStats::operator+=(const StepStats& o) {
   dt = o.dt;
   cg_iterations_step1 += o.cg_iterations_step1;
   cg_iterations_step4 += o.cg_iterations_step4;
+  cg_iterations_step3 += o.cg_iterations_step3;
   newton_iterations += o.newton_iterations;
   rotation_iterations += o.rotation_iterations;
   contact_passes += o.contact_passes;
@@ -900,7 +901,8 @@ StepStats System::advance_awake(double frame_dt) {
   const double work_per_iteration = kCgWorkPerParticle * double(std::max<Index>(1, m_particles.size()));
   const auto iterations = [&](const StepStats& s) {
     m_contact_iterations = s.contact_work / work_per_iteration / std::max(1, s.substeps);
-    return double(s.cg_iterations_step1 + s.cg_iterations_step4) / std::max(1, s.substeps) + m_contact_iterations;
+    return double(s.cg_iterations_step1 + s.cg_iterations_step3 + s.cg_iterations_step4) / std::max(1, s.substeps) +
+           m_contact_iterations;
   };
   if (!go_implicit) {
     if (as_set == 0) too_many(limit);

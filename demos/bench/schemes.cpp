@@ -144,7 +144,8 @@ Run run(const std::string& name, const Scheme& scheme, int frames) {
   r.ms_per_frame = 1e3 * seconds / std::max<std::size_t>(1, r.energy.size());
   if (const StepStats* s = scene->total_stats(); s && !r.energy.empty()) {
     r.substeps_per_frame = double(s->substeps) / double(r.energy.size());
-    r.cg_per_substep = double(s->cg_iterations_step1 + s->cg_iterations_step4) / double(std::max(1, s->substeps));
+    r.cg_per_substep = double(s->cg_iterations_step1 + s->cg_iterations_step3 + s->cg_iterations_step4) /
+                       double(std::max(1, s->substeps));
   }
   return r;
 }

@@ -526,7 +526,8 @@ int main(int argc, char** argv) try {
           const StepStats& st = run.stats;
           const double ticks = frames * s.ticks, per = 1.0 / ticks;
           const double cg_per_substep =
-              double(st.cg_iterations_step1 + st.cg_iterations_step4) / std::max(1, st.substeps);
+              double(st.cg_iterations_step1 + st.cg_iterations_step3 + st.cg_iterations_step4) /
+              std::max(1, st.substeps);
           std::fprintf(phases, "%s,%d,%d,%.3f,%.2f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f\n", system.c_str(), n,
                        s.ticks, st.substeps * per, cg_per_substep, st.ms.total * per,
                        st.ms.implicit_half_velocity * per, st.ms.advance_positions * per,

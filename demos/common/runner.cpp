@@ -75,7 +75,7 @@ int run_headless(const Program& program, const Options& o, const RunHooks& hooks
       char text[160];
       std::snprintf(text, sizeof text, "\"substeps_per_frame\": %.2f, \"cg_iterations_per_substep\": %.2f, ",
                     double(s->substeps) / o.frames,
-                    double(s->cg_iterations_step1 + s->cg_iterations_step4) / s->substeps);
+                    double(s->cg_iterations_step1 + s->cg_iterations_step3 + s->cg_iterations_step4) / s->substeps);
       stats = text;
     }
     if (checker) {

@@ -148,6 +148,10 @@ class CollisionSource {
   /// contact work with its solves when it chooses the substep count: a count, not a clock, so the
   /// choice is the same run to run. Zero for sources that do not count.
   virtual double work() const { return 0.0; }
+  /// True for a source whose result must be the step's final positions (a continuous test's guarantee
+  /// is about them): the step spreads what the sources before it moved through the implicit forces
+  /// (StepSettings::spread_collisions) before it runs, and nothing after.
+  virtual bool needs_final_positions() const { return false; }
   /// What one continuous (swept) pair test counts in work(): a cubic's roots, bisected, against a
   /// box test and a closest-point query.
   static constexpr double kContinuousTestWork = 8.0;

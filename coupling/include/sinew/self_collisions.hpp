@@ -67,6 +67,9 @@ class SelfCollisions final : public CollisionSource {
   };
   const Totals& totals() const { return m_totals; }
   double work() const override { return m_work; }
+  /// Its pairs are resolved at the positions it sees, and its continuous test's guarantee (no triangle
+  /// pair crossing at the step's end) is about them: the spread of the other sources' moves comes first.
+  bool needs_final_positions() const override { return true; }
 
  private:
   /// Pushes the pair of `count` points with `weights` (summing to zero: +1 side, -1 side) apart along

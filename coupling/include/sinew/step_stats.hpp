@@ -11,11 +11,11 @@ namespace sinew {
 struct PhaseTimes {
   double implicit_half_velocity = 0;   ///< step 1, eq. 8 (forces, right-hand side and CG)
   double advance_positions = 0;        ///< step 2
-  double process_collisions = 0;       ///< step 3 (synchronisation, hook, drift push-back)
+  double process_collisions = 0;       ///< step 3 (sources, drift push-back, the spread's solves)
   double backward_euler_velocity = 0;  ///< step 4 (forces at x^{n+1/2}, right-hand side and CG)
   double extrapolate_velocity = 0;     ///< step 5
   double forces = 0;                   ///< of steps 1 and 4: force evaluation and right-hand side
-  double cg = 0;                       ///< of steps 1 and 4: conjugate gradients
+  double cg = 0;                       ///< of steps 1 and 4: conjugate gradients (step 3's: in its own)
   double total = 0;
 
   PhaseTimes& operator+=(const PhaseTimes& o);
@@ -26,6 +26,8 @@ struct StepStats {
   double dt = 0;                ///< the substep used
   int cg_iterations_step1 = 0;  ///< summed over substeps
   int cg_iterations_step4 = 0;
+  /// Of the solves that spread step 3's moves through the implicit forces (StepSettings::spread_collisions).
+  int cg_iterations_step3 = 0;
   int newton_iterations = 0;  ///< StepSettings::newton_iterations done (their CG iterations count in step 1's)
   /// Step 1 solves repeated because a rigid body's turn over the step came out different from the one
   /// its points' arms were set from (StepSettings::rotation_iterations); their CG iterations count

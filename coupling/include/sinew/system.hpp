@@ -114,6 +114,15 @@ struct StepSettings {
   /// part of the stiffness, so the iterations converge linearly, not quadratically: one or two are
   /// what pays (figures behind this: demos/bench/README.md).
   int newton_iterations = 0;
+  /// Step 3 spreads what it moves through the step-1 operator's implicit forces: where the collision
+  /// sources put particles back out of a surface (by up to their approach times dt), the rest of the
+  /// deformable follows as the first solve would have moved it with those particles held there
+  /// (Newmark::spread_collisions): solves on the particles (one, and up to three more while the
+  /// contacts that hold change) when some particle moved by more than cg_tolerance dt. Off, a stiff
+  /// solid landing at speed v is squashed by v dt in its contact layer alone, an elastic energy the
+  /// step then returns as a bounce. Only where step 1 has an implicit term (damping, binding springs,
+  /// implicit elasticity, joints); with only damping the particles barely follow.
+  bool spread_collisions = true;
   /// Threads for the step's loops (0: every hardware thread). Results are bit-identical for any
   /// count (sinew/parallel.hpp); small scenes stay on one thread whatever this says.
   int threads = 1;
