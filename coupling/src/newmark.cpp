@@ -62,10 +62,12 @@ StepStats Newmark::step(const StepModel& s, double dt) {
   if (!m_allocated) allocate(s);
   const auto start = Clock::now();
   m_implicit_elasticity = false;  // the setting may change between steps
+  m_implicit_solid = false;
   for (const auto& f : s.forces) {
     const bool implicit = s.settings.implicit_elasticity && f->has_definite_differentials();
     f->set_implicit(implicit);
     m_implicit_elasticity = m_implicit_elasticity || implicit;
+    m_implicit_solid = m_implicit_solid || (implicit && f->volumetric());
   }
   StepStats stats;
   stats.substeps = 1;
@@ -702,7 +704,7 @@ void Newmark::process_collisions(const StepModel& s, double dt, StepStats& stats
     // The spread (spread_collisions) comes after every source, or before the first that must have the
     // step's final positions (a continuous test's guarantee is about them), over what the sources
     // before it moved.
-    bool spread = s.settings.spread_collisions && needs_linear_solve(s);
+    bool spread = s.settings.spread_collisions && m_implicit_solid;
     const auto spread_now = [&] {
       s.soft.push_drift(p, s.bodies, s.hard, s.effective_mass, m_body_L_n);
       s.hard.clamp_positions(p.x, s.bodies.x);

@@ -196,6 +196,7 @@ class Newmark {
   } m_preconditioner_key;
   bool m_has_damping = false;
   bool m_implicit_elasticity = false;  // some elastic force enters the step-1 solve
+  bool m_implicit_solid = false;       // some of them a solid's (Force::volumetric): step 3 spreads
   DivergenceCheck m_divergence;        // the energy budget each step is checked against
   Vectors6 m_scratch_wrench;           // the divergence check's, when it names the largest force
 };

@@ -55,6 +55,11 @@ class Force {
   /// exact differential wherever that is definite) and so may be treated implicitly.
   virtual bool has_definite_differentials() const { return false; }
 
+  /// True for a solid's elasticity (tets, a meshfree matrix): a layer pushed into the one behind it
+  /// stores its energy there, so step 3's moves are spread through it when it is implicit
+  /// (StepSettings::spread_collisions). A sheet or a rod is one layer thick and has no such layer.
+  virtual bool volumetric() const { return false; }
+
   /// Called before every step with whether the step treats this force implicitly (it has definite
   /// differentials and StepSettings::implicit_elasticity is on), before update_position_state, so
   /// that a force can cache what its implicit products need only when they are used.

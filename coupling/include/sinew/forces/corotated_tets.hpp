@@ -46,6 +46,7 @@ class CorotatedTets final : public Force, public ImplicitBlocks {
   /// symmetric and negative semi-definite (the exact differential at rest, where R = I; away from it
   /// it leaves out R's own change). The damping D = beta K+ uses the same operator.
   bool has_definite_differentials() const override { return m_settings.implicit; }
+  bool volumetric() const override { return true; }
   void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
   double stable_dt(const VectorXd& m_eff) const override;
   bool can_remove_elements() const override { return true; }

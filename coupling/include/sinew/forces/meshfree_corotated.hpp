@@ -69,6 +69,7 @@ class MeshfreeCorotated final : public Force {
   void add_damping_forces(const Vectors3& v, Vectors3& f) const override;
   bool has_damping() const override { return m_settings.beta > 0.0; }
   bool has_definite_differentials() const override { return m_settings.implicit; }
+  bool volumetric() const override { return true; }
   /// f += D v + b K+ v: the warped stiffness R K0 R^T of the corotated part (R held fixed), scaled
   /// by beta + b, plus b times the hourglass penalty's constant differential.
   void add_implicit_products(const Vectors3& v, double b, Vectors3& f) const override;
