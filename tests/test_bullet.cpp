@@ -1027,6 +1027,56 @@ TEST(BulletCoupling, ClothHittingADynamicBodyConservesMomentumOnEitherPath) {
   }
 }
 
+// A light body Bullet alone moves landing on heavier particles: a 10 g box at 1 m/s onto a free cloth
+// of 5.6 g nodes (no gravity). Each contact is an inelastic impact between a particle and the box as a
+// body of its own mass, seeing the impulses of the contacts before it; stopping every particle's
+// approach as if the box were immovable, the reactions summed onto its velocity at the step's start,
+// raised the energy to 116 times the box's. The energy the user sees (kinetic of box and cloth, the
+// cloth's elastic) never rises above the box's, and momentum is kept. (As a rigid-body particle of
+// the system the box still meets each particle as if immovable: 5.5 times; see plugin/README.md.)
+TEST(BulletCoupling, ALightBoxLandingOnHeavierParticlesGainsNoEnergy) {
+  BulletWorld bw(btVector3(0, 0, 0));
+  btRigidBody* box = add_box(bw, btVector3(0.1, 0.02, 0.1), 0.01, scenes::at(btVector3(0.01, 0.3, 0.02)));
+  box->setLinearVelocity(btVector3(0, -1, 0));
+  box->setActivationState(DISABLE_DEACTIVATION);
+  bullet::Coupling coupling(&bw.world());
+  System& s = coupling.system();
+  scenes::ClothGridSettings c = small_cloth(Vec3(-0.25, 0.2, -0.25));
+  c.down = Vec3::UnitZ();  // lying flat under the box
+  const scenes::ClothGrid cloth = scenes::add_cloth_grid(s, c);
+  s.step_settings().cg_tolerance = 1e-13;
+  s.finalize();
+  const double box_mass = 1.0 / static_cast<double>(box->getInvMass());
+  auto box_energy = [&] {
+    const Vec3 w = bullet::to_eigen(box->getAngularVelocity());
+    const Vec3 inverse = bullet::to_eigen(box->getInvInertiaDiagLocal());
+    double e = 0.5 * box_mass * bullet::to_eigen(box->getLinearVelocity()).squaredNorm();
+    for (int k = 0; k < 3; ++k) e += 0.5 * w[k] * w[k] / inverse[k];  // a box's axes are its principal ones
+    return e;
+  };
+  auto momentum = [&] {
+    Vec3 p = box_mass * bullet::to_eigen(box->getLinearVelocity());
+    for (Index node : cloth.nodes) p += s.particles().mass[node] * s.particles().v.col(node);
+    return p;
+  };
+  auto energy = [&] {
+    double e = box_energy() + s.potential_energy();
+    for (Index node : cloth.nodes) e += 0.5 * s.particles().mass[node] * s.particles().v.col(node).squaredNorm();
+    return e;
+  };
+  const double e0 = energy();
+  const Vec3 p0 = momentum();
+  double highest = 0.0, worst_momentum = 0.0;
+  for (int frame = 0; frame < 60; ++frame) {
+    bw.world().stepSimulation(btScalar(1.0 / 60), 4, btScalar(1.0 / 240));
+    highest = std::max(highest, energy());
+    worst_momentum = std::max(worst_momentum, (momentum() - p0).norm());
+  }
+  EXPECT_GT(box->getLinearVelocity().y(), -0.9) << "the cloth slowed the box";
+  EXPECT_LE(highest, e0 * (1 + 1e-6)) << "energy rose from " << e0 << " J to " << highest << " J";
+  EXPECT_LT(worst_momentum, 1e-9);
+}
+
 // Per-particle collision filters follow Bullet's convention: a particle meets an object only when each
 // one's group is in the other's mask. A cloth whose mask leaves out static objects falls through a
 // static ground that a default cloth rests on.

@@ -1518,7 +1518,17 @@ void Coupling::hold_contacts_at_tick_end(double dt) {
       const BodyView body = body_view(contact.body, false);
       const Vec3 lever = Vec3(particles.x.col(i)) - body.centre;
       const Vec3 v_old = particles.v.col(i);
-      const Vec3 v_new = stop_approach(v_old, body.velocity(lever), contact.normal, m_collisions->friction());
+      const double mass = particles.mass[i];
+      Vec3 v_new;
+      if (mass > 0.0 && body.particle < 0) {
+        // As step 3 takes it: a body Bullet alone moves as a body of its own mass (inelastic_impulse).
+        const Mat3 K = Mat3::Identity() / mass +
+                       body_point_inverse_mass(body.inverse_mass, body.linear_factor, body.inverse_inertia, lever);
+        v_new =
+            v_old + inelastic_impulse(v_old - body.velocity(lever), contact.normal, m_collisions->friction(), K) / mass;
+      } else {
+        v_new = stop_approach(v_old, body.velocity(lever), contact.normal, m_collisions->friction());
+      }
       if (v_new == v_old) continue;
       particles.v.col(i) = v_new;
       body.push(lever, -particles.mass[i] * (v_new - v_old));

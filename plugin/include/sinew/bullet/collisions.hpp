@@ -30,6 +30,21 @@ bool signed_distance(const btCollisionShape* shape, const btTransform& frame, co
 /// not approach.
 Vec3 stop_approach(const Vec3& v, const Vec3& v_body, const Vec3& n, double mu);
 
+/// How a body's velocity at lever r (from its centre of mass) answers an impulse j there: dv = K j with
+/// K = m^-1 diag(linear_factor) - [r]x I^-1 [r]x (inverse_inertia in world axes, locks applied).
+Mat3 body_point_inverse_mass(double inverse_mass, const Vec3& linear_factor, const Mat3& inverse_inertia,
+                             const Vec3& r);
+
+/// The impulse on a contact point that stops its approach to a body of finite mass: `v_rel` the point's
+/// velocity relative to the body's surface, n the unit normal out of the body, `K` the pair's inverse
+/// mass at the point (the point's own, times the identity, plus body_point_inverse_mass). Its normal
+/// part leaves the two with the same normal velocity (a perfectly inelastic impact between the point
+/// and the body, never more); its tangential part then takes up to all of the slip that is left,
+/// bounded by mu times the normal part. Zero when the point does not approach. Against a body of
+/// infinite mass (K = I / m) this is stop_approach's change times m; against a light one it does not
+/// throw the body off at the point's whole approach speed times the point's mass ratio.
+Vec3 inelastic_impulse(const Vec3& v_rel, const Vec3& n, double mu, const Mat3& K);
+
 struct CollisionSettings {
   double thickness = 0.01;  ///< particles keep this distance from every surface [m]
   double friction = 0.3;    ///< Coulomb coefficient between cloth and rigid surfaces
@@ -172,6 +187,11 @@ class BulletCollisions final : public CollisionSource {
     btRigidBody* body;
     btVector3 impulse, torque_impulse;
   };
+  /// What the impulses held for body (applied after the step) add to its velocity at `arm` (from its
+  /// centre of mass), as Bullet's applyCentralImpulse and applyTorqueImpulse will.
+  Vec3 pending_velocity(const btRigidBody* body, const btVector3& arm) const;
+  /// The pair inverse mass (body_point_inverse_mass) of a dynamic body at `arm` as Bullet has it.
+  static Mat3 bullet_point_inverse_mass(const btRigidBody* body, const btVector3& arm);
   std::vector<Pending> m_pending;
   std::vector<DynamicContact> m_dynamic_contacts;
   // process_features: the surfaces' triangles and edges binned by their boxes over the step, and each
