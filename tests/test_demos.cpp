@@ -857,6 +857,38 @@ TEST(BarsDemo, FiberLayoutsTwistShearAndStiffenTheBar) {
   EXPECT_TRUE(scene->system().particles().x.allFinite());
 }
 
+// Figure 7 of the fibers paper (the `press` scene): three meshfree bars, 4 x 4 x 20 particles 1.5 cm
+// apart (E = 1 MPa, 1000 kg/m^3), their two lowest layers bound to the ground and their top layers
+// glued to 11 kg Bullet panels that a joint keeps level, loaded over 1 s. The plain bar stays
+// straight, and shortens as a column under its load and the weight of its layers above each span
+// does, P / (E A) per span, to 5% (the bound ends, held from spreading sideways, stiffen it a
+// little); sideways by less than 0.1 mm (at 16 ticks a frame round-off moves it 0.02 mm). The bowed fibers bend their
+// bar their way (more than 5 mm at mid-height), the S-shaped ones bend theirs into an S (out one way below, the other
+// way above, each more than 2 mm); the panels come to rest, and the energy less the lift's work never rises above its
+// start.
+TEST(PressDemo, FibersDrawnCurvedChooseHowThePressedBarBends) {
+  auto scene = make_bullet_scene("press");
+  for (int f = 0; f < 150; ++f) scene->advance(1.0 / 60, scene->default_substeps());
+  const std::string fields = scene->json_fields();
+  const auto bar = [&](const char* name) { return fields.substr(fields.find(std::string("\"") + name + "\"")); };
+  // The plain bar's shortening over the 18 spans between its bound layers: each span carries the
+  // panel with the glued layer, and the free layers above it.
+  const double s = 0.015, g = 9.81, EA = 1e6 * (4 * s) * (4 * s), layer = 16 * 1000.0 * s * s * s;
+  double shortening = 0.0;
+  for (int k = 1; k <= 18; ++k) shortening += s * ((11.0 + layer) * g + (18 - k) * layer * g) / EA;
+  EXPECT_NEAR(json_field(bar("plain"), "squash"), shortening / (19 * s), 0.05 * shortening / (19 * s));
+  for (const char* field : {"offset_quarter", "offset_mid", "offset_three_quarters"})
+    EXPECT_LT(std::abs(json_field(bar("plain"), field)), 1e-4) << field;
+  EXPECT_GT(json_field(bar("bow"), "offset_mid"), 5e-3);
+  EXPECT_GT(json_field(bar("bow"), "offset_quarter"), 0.0);
+  EXPECT_GT(json_field(bar("bow"), "offset_three_quarters"), 0.0);
+  EXPECT_GT(json_field(bar("s"), "offset_quarter"), 2e-3);
+  EXPECT_LT(json_field(bar("s"), "offset_three_quarters"), -2e-3);
+  for (const char* name : {"plain", "bow", "s"}) EXPECT_LT(json_field(bar(name), "panel_speed"), 1e-3) << name;
+  EXPECT_LE(json_field(fields, "energy_less_lift_work_gain_max"), 0.0);
+  EXPECT_TRUE(scene->system().particles().x.allFinite());
+}
+
 // Figure 10 of the fibers paper, coupled to Bullet: the stalk's root is hard-bound to a dynamic pot,
 // and its fiber's structure particles near the root hang partly on the pot's frame points (mixed
 // bindings). The fiber holds the soft stalk up (its tip within 1.5 cm of where it started) until it
