@@ -682,7 +682,9 @@ void Newmark::process_collisions(const StepModel& s, double dt, StepStats& stats
   auto& constraints = m_constraints.collisions();
   constraints.clear();
   if (!s.collision_sources.empty()) {
-    m_x_predicted = p.x;
+    // The spread (below) measures step 3's moves from the positions the sources are handed.
+    const bool will_spread = s.settings.spread_collisions && m_implicit_solid;
+    if (will_spread) m_x_predicted = p.x;
     CollisionContext context;
     context.time = s.time;
     context.dt = dt;
@@ -704,7 +706,7 @@ void Newmark::process_collisions(const StepModel& s, double dt, StepStats& stats
     // The spread (spread_collisions) comes after every source, or before the first that must have the
     // step's final positions (a continuous test's guarantee is about them), over what the sources
     // before it moved.
-    bool spread = s.settings.spread_collisions && m_implicit_solid;
+    bool spread = will_spread;
     const auto spread_now = [&] {
       s.soft.push_drift(p, s.bodies, s.hard, s.effective_mass, m_body_L_n);
       s.hard.clamp_positions(p.x, s.bodies.x);
