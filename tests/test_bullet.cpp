@@ -1048,10 +1048,11 @@ TEST(BulletCoupling, ALightBoxLandingOnHeavierParticlesGainsNoEnergy) {
   s.finalize();
   const double box_mass = 1.0 / static_cast<double>(box->getInvMass());
   auto box_energy = [&] {
-    const Vec3 w = bullet::to_eigen(box->getAngularVelocity());
+    // The spin in the box's principal axes, where its inertia is diagonal.
+    const Vec3 w = bullet::to_eigen(box->getAngularVelocity() * box->getCenterOfMassTransform().getBasis());
     const Vec3 inverse = bullet::to_eigen(box->getInvInertiaDiagLocal());
     double e = 0.5 * box_mass * bullet::to_eigen(box->getLinearVelocity()).squaredNorm();
-    for (int k = 0; k < 3; ++k) e += 0.5 * w[k] * w[k] / inverse[k];  // a box's axes are its principal ones
+    for (int k = 0; k < 3; ++k) e += 0.5 * w[k] * w[k] / inverse[k];
     return e;
   };
   auto momentum = [&] {

@@ -517,7 +517,7 @@ TEST(SqueezeDemo, PanelsPushedTogetherSqueezeTheBallAndComeToRest) {
   const double l = left->getCenterOfMassPosition().x(), r = right->getCenterOfMassPosition().x();
   EXPECT_LT(gain, 1e-9 * energy_0);
   EXPECT_LT(r - right_0, -0.03);                      // squeezed by centimetres
-  EXPECT_NEAR(l, -r, 1e-4);                           // symmetric (to 2 um here)
+  EXPECT_NEAR(l, -r, 1e-4);                           // symmetric (to 3 um here)
   EXPECT_LT(std::abs(r - right_at_3s), 1e-4);         // at rest over the last second
   EXPECT_LT(deepest, -0.5 * thickness);               // the nodes keep (about) the thickness off
   EXPECT_GE(s.particles().x.row(1).minCoeff(), 0.0);  // and off the ground
@@ -885,7 +885,7 @@ TEST(PressDemo, FibersDrawnCurvedChooseHowThePressedBarBends) {
   EXPECT_GT(json_field(bar("s"), "offset_quarter"), 2e-3);
   EXPECT_LT(json_field(bar("s"), "offset_three_quarters"), -2e-3);
   for (const char* name : {"plain", "bow", "s"}) EXPECT_LT(json_field(bar(name), "panel_speed"), 1e-3) << name;
-  EXPECT_LE(json_field(fields, "energy_less_lift_work_gain_max"), 0.0);
+  EXPECT_LE(json_field(fields, "energy_less_lift_work_gain_max"), 1e-9 * scene->total_energy());
   EXPECT_TRUE(scene->system().particles().x.allFinite());
 }
 

@@ -904,19 +904,20 @@ Vec3 BulletCollisions::pending_velocity(const btRigidBody* body, const btVector3
   for (const Pending& p : m_pending)
     if (p.body == body) {
       const btVector3 dv = p.impulse * body->getLinearFactor() * body->getInvMass();
-      const btVector3 dw = body->getInvInertiaTensorWorld() * (p.torque_impulse * body->getAngularFactor());
+      const btVector3 dw = body->getInvInertiaTensorWorld() * p.torque_impulse * body->getAngularFactor();
       return to_eigen(dv + dw.cross(arm));
     }
   return Vec3::Zero();
 }
 
 Mat3 BulletCollisions::bullet_point_inverse_mass(const btRigidBody* body, const btVector3& arm) {
-  // Bullet turns a torque impulse t into I^-1 (F t): the locks scale the inverse inertia's columns.
+  // Bullet turns a torque impulse t into F (I^-1 t) (applyTorqueImpulse): the locks scale the inverse
+  // inertia's rows.
   const btMatrix3x3& inverse = body->getInvInertiaTensorWorld();
   const Vec3 factor = to_eigen(body->getAngularFactor());
   Mat3 inertia;
   for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c) inertia(r, c) = static_cast<double>(inverse[r][c]) * factor[c];
+    for (int c = 0; c < 3; ++c) inertia(r, c) = factor[r] * static_cast<double>(inverse[r][c]);
   return body_point_inverse_mass(static_cast<double>(body->getInvMass()), to_eigen(body->getLinearFactor()), inertia,
                                  to_eigen(arm));
 }

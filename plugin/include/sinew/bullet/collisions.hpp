@@ -40,9 +40,11 @@ Mat3 body_point_inverse_mass(double inverse_mass, const Vec3& linear_factor, con
 /// mass at the point (the point's own, times the identity, plus body_point_inverse_mass). Its normal
 /// part leaves the two with the same normal velocity (a perfectly inelastic impact between the point
 /// and the body, never more); its tangential part then takes up to all of the slip that is left,
-/// bounded by mu times the normal part. Zero when the point does not approach. Against a body of
-/// infinite mass (K = I / m) this is stop_approach's change times m; against a light one it does not
-/// throw the body off at the point's whole approach speed times the point's mass ratio.
+/// bounded by mu times the normal part (where the body's lever couples the directions, it may leave
+/// a small approach, which the end-of-tick pass removes). Neither part adds kinetic energy for a
+/// symmetric K (a body with partial angular locks and a tilted inertia makes it slightly not so). Zero when the point
+/// does not approach. Against a body of infinite mass (K = I / m) this is stop_approach's change times m; against a
+/// light one it does not throw the body off at the point's whole approach speed times the point's mass ratio.
 Vec3 inelastic_impulse(const Vec3& v_rel, const Vec3& n, double mu, const Mat3& K);
 
 struct CollisionSettings {
