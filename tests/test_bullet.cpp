@@ -1078,6 +1078,53 @@ TEST(BulletCoupling, ALightBoxLandingOnHeavierParticlesGainsNoEnergy) {
   EXPECT_LT(worst_momentum, 1e-9);
 }
 
+// A box dropped on a cloth lying on the ground, at Bullet's default tick (one 1/60 s tick a frame):
+// each node under the box is caught between the box and the ground, which Bullet keeps apart. Pushed
+// out of one into the other at every step, the nodes threw the cloth about (a 5 kg box landing flat:
+// diverged at step 74, nodes at 1600 m/s; a 1 kg box landing on an edge: the scene's energy 3.9 J ->
+// 13.6 J). They follow the ground instead, squeezed under the box: the scene never gains energy, the
+// box comes to rest on the ground and the cloth stays above it.
+TEST(BulletCoupling, ABoxDroppedOnAClothOnTheGroundHoldsAtOneTick) {
+  struct Case {
+    double mass;
+    btQuaternion tilt;
+  };
+  for (const Case& k : {Case{5.0, btQuaternion::getIdentity()}, Case{1.0, btQuaternion(0.1, 0.2, 0.0)}}) {
+    BulletWorld bw(btVector3(0, -9.81, 0));
+    add_box(bw, btVector3(5, 0.5, 5), 0.0, scenes::at(btVector3(0, -0.5, 0)));
+    btRigidBody* box = add_box(bw, btVector3(0.15, 0.1, 0.15), k.mass, btTransform(k.tilt, btVector3(0.05, 0.4, 0.02)));
+    bullet::Coupling coupling(&bw.world());
+    System& s = coupling.system();
+    scenes::ClothGridSettings c;  // a user's cloth: the builder's defaults
+    c.nx = c.ny = 21;
+    c.width = c.height = 1.0;
+    c.mass = 0.2;
+    c.origin = Vec3(-0.5, 0.011, -0.5);
+    c.down = Vec3::UnitZ();
+    scenes::add_cloth_grid(s, c);
+    auto energy = [&] {
+      const Vec3 w = bullet::to_eigen(box->getAngularVelocity() * box->getCenterOfMassTransform().getBasis());
+      const Vec3 inverse = bullet::to_eigen(box->getInvInertiaDiagLocal());
+      double e = 0.5 * k.mass * bullet::to_eigen(box->getLinearVelocity()).squaredNorm() +
+                 k.mass * 9.81 * static_cast<double>(box->getCenterOfMassPosition().y());
+      for (int a = 0; a < 3; ++a) e += 0.5 * w[a] * w[a] / inverse[a];
+      return e + s.kinetic_energy() + s.potential_energy();
+    };
+    double e0 = 0.0, highest = 0.0;
+    for (int frame = 0; frame < 240; ++frame) {
+      ASSERT_NO_THROW(bw.world().stepSimulation(btScalar(1.0 / 60), 1, btScalar(1.0 / 60))) << "frame " << frame;
+      if (frame == 0) e0 = energy();
+      highest = std::max(highest, energy());
+    }
+    EXPECT_LE(highest, e0 * (1 + 1e-3)) << k.mass << " kg: energy rose from " << e0 << " J to " << highest << " J";
+    EXPECT_NEAR(box->getCenterOfMassPosition().y(), 0.1, 0.01) << k.mass << " kg: the box rests on the ground";
+    EXPECT_GT(s.particles().x.row(1).minCoeff(), 0.0) << k.mass << " kg: the cloth stays above the ground";
+    // Not yet zero: a node wedged against the box's side at its foot keeps a reported speed of 4 m/s
+    // while it stays where it is (0.013 J with the 5 kg box, 0.017 J with the 1 kg one; written down).
+    EXPECT_LT(s.kinetic_energy(), 0.05) << k.mass << " kg: the cloth is nearly at rest";
+  }
+}
+
 // Per-particle collision filters follow Bullet's convention: a particle meets an object only when each
 // one's group is in the other's mask. A cloth whose mask leaves out static objects falls through a
 // static ground that a default cloth rests on.
@@ -1922,14 +1969,18 @@ TEST(Sleeping, AClothAsleepOnTheGroundWakesForAFallingBoxThatItThenStopsAsItWoul
   const double yb = static_cast<double>(box_b->getCenterOfMassPosition().y());
   EXPECT_NEAR(ya, yb, 1e-3);
   EXPECT_GT(ya, 0.05 - 1e-3);  // on the ground through the cloth, as awake
-  // No part of the cloth was left inside the box (as it would be, had it slept on).
+  // The woken cloth lies as the awake one does: the nodes under the box squeezed on the ground, the
+  // others where the box's landing left them.
+  const double apart = (a.system().particles().x - b.system().particles().x).colwise().norm().maxCoeff();
+  std::cout << "largest distance between the woken and the awake cloth's nodes " << apart << " m\n";
+  EXPECT_LT(apart, 1e-3);
   const System& s = a.system();
   for (Index i = 0; i < s.particles().size(); ++i) {
     double phi;
     Vec3 n;
     ASSERT_TRUE(bullet::signed_distance(box_a->getCollisionShape(), box_a->getCenterOfMassTransform(),
                                         s.particles().x.col(i), 1.0, phi, n));
-    EXPECT_GT(phi, 0.0) << "particle " << i;
+    if (phi < 0.0) EXPECT_LT(s.particles().x(1, i), 0.01 + 1e-6) << "particle " << i << " in the box, off the ground";
   }
   EXPECT_LT(bullet::to_eigen(box_a->getLinearVelocity()).norm(), 0.05) << "stopped";
 }
@@ -2250,8 +2301,10 @@ TEST(Pinching, AViseOfTwoDynamicBoxesClosedOnAClothHoldsIt) {
 // A 0.5 kg box dropped on a cloth lying on the ground (plane, 1/240 s ticks) rests on the ground
 // through it: Bullet's box meets the plane with no room for the cloth's thickness on either side.
 // With pinching the nodes under the box hang between their duplicates, still and above the ground;
-// without, each is pushed out of the nearer of the two, into the other, at every step: after four
-// seconds the cloth still jitters at a metre a second, its lowest node 7 mm into the ground.
+// without, they follow the ground (a node caught between a body Bullet alone moves and a static
+// object), squeezed under the box, and none goes into the ground; the cloth around the box still
+// jitters at 0.7 m/s. Before that rule each node was pushed out of the nearer of the two, into the
+// other, at every step: the cloth jittered at a metre a second, its lowest node 7 mm into the ground.
 struct BoxOnClothOnGround {
   BulletWorld w{btVector3(0, -9.81, 0)};
   btRigidBody* box = nullptr;
@@ -2296,8 +2349,10 @@ TEST(Pinching, ABoxRestingOnAClothOnTheGroundHoldsItStill) {
   EXPECT_GE(pinched.coupling->pinches().size(), 9u);  // the nodes under a 10 cm box at 2.5 cm spacing
   EXPECT_LT(rms, 0.05);
   EXPECT_GT(lowest, 0.0);
-  EXPECT_GT(naive_rms, 0.5);
-  EXPECT_LT(naive_lowest, -0.005);
+  std::cout << "velocity RMS with pinching " << rms << " m/s, without " << naive_rms << " m/s; lowest node " << lowest
+            << " m, without " << naive_lowest << " m\n";
+  EXPECT_GT(naive_rms, 10 * rms);  // pinching still pays: 0.73 m/s without, 0.01 with
+  EXPECT_GT(naive_lowest, 0.0);
 }
 
 // A pinch stiffness that is not a positive number is refused when the coupling is made, by name.
