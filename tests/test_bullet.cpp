@@ -1027,6 +1027,85 @@ TEST(BulletCoupling, ClothHittingADynamicBodyConservesMomentumOnEitherPath) {
   }
 }
 
+// The pair inverse mass K at a lever r is how Bullet's body answers the two impulses sinew hands it
+// for a contact there (applyCentralImpulse(j), applyTorqueImpulse(r x j)): dv(r) = K j, for a tilted
+// body with partial linear and angular locks (Bullet scales the rows of I^-1 by the angular factor).
+TEST(ContactImpulses, APointsInverseMassIsHowBulletsBodyAnswersAnImpulse) {
+  BulletWorld bw(btVector3(0, 0, 0));
+  const btTransform tilted(btQuaternion(btVector3(1, 2, 0.5).normalized(), 0.7), btVector3(0.3, 1, -0.2));
+  btRigidBody* body = add_box(bw, btVector3(0.3, 0.05, 0.12), 2.0, tilted);
+  const std::array<btVector3, 3> linear{btVector3(1, 1, 1), btVector3(1, 0, 1), btVector3(0.5, 1, 0)};
+  const std::array<btVector3, 3> angular{btVector3(1, 1, 1), btVector3(0, 1, 0), btVector3(0.3, 1, 0.6)};
+  const std::array<Vec3, 3> arms{Vec3(0.3, 0.05, -0.1), Vec3(-0.2, 0.1, 0.12), Vec3(0.01, -0.3, 0.2)};
+  const std::array<Vec3, 2> impulses{Vec3(0.2, -1.0, 0.3), Vec3(-0.5, 0.1, 0.7)};
+  for (std::size_t k = 0; k < linear.size(); ++k) {
+    body->setLinearFactor(linear[k]);
+    body->setAngularFactor(angular[k]);
+    Mat3 inverse_inertia;  // I^-1 in world axes, its rows scaled by the angular factor
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c)
+        inverse_inertia(r, c) = angular[k][r] * static_cast<double>(body->getInvInertiaTensorWorld()[r][c]);
+    for (const Vec3& r : arms) {
+      const Mat3 K = bullet::body_point_inverse_mass(static_cast<double>(body->getInvMass()),
+                                                     bullet::to_eigen(linear[k]), inverse_inertia, r);
+      for (const Vec3& j : impulses) {
+        body->setLinearVelocity(btVector3(0.1, -0.2, 0.3));
+        body->setAngularVelocity(btVector3(-1, 0.5, 2));
+        auto point_velocity = [&] { return bullet::to_eigen(body->getVelocityInLocalPoint(bullet::to_bullet(r))); };
+        const Vec3 before = point_velocity();
+        body->applyCentralImpulse(bullet::to_bullet(j));
+        body->applyTorqueImpulse(bullet::to_bullet(r).cross(bullet::to_bullet(j)));
+        EXPECT_LT((point_velocity() - before - K * j).norm(), 1e-12 * (K * j).norm() + 1e-15)
+            << "locks " << k << ", lever " << r.transpose() << ", impulse " << j.transpose();
+      }
+    }
+  }
+}
+
+// The impulse between a point and a body of finite mass, on pair inverse masses K of a point and
+// a body (symmetric: no partial locks): it never stops short of equal normal velocities before
+// friction, its tangential part stays in Coulomb's cone mu j_n, it never adds kinetic energy
+// (j . v_rel + j . K j / 2 <= 0), it is zero for a point that does not approach, and against an
+// immovable body (K = I / m) it is stop_approach's change times m.
+TEST(ContactImpulses, TheInelasticImpulseStopsTheApproachWithinCoulombsConeAndAddsNoEnergy) {
+  const Mat3 tilt = Eigen::AngleAxisd(0.6, Vec3(0.3, 1, -0.4).normalized()).toRotationMatrix();
+  const Mat3 inverse_inertia = tilt * Vec3(40, 7, 15).asDiagonal() * tilt.transpose();
+  const double point_mass = 0.004;
+  const std::array<Vec3, 4> velocities{Vec3(0.3, -1, 0.2), Vec3(2, -0.1, -1), Vec3(0, -0.5, 0), Vec3(0.5, 0.2, 0)};
+  const Vec3 n = Vec3(0.1, 1, -0.2).normalized();
+  for (const double body_mass : {0.01, 1.0, 1e3}) {
+    for (const Vec3& r : {Vec3(0.2, -0.1, 0.05), Vec3(0, 0, 0)}) {
+      const Mat3 K = Mat3::Identity() / point_mass +
+                     bullet::body_point_inverse_mass(1.0 / body_mass, Vec3::Ones(), inverse_inertia, r);
+      for (const double mu : {0.0, 0.3, 5.0}) {
+        for (const Vec3& v : velocities) {
+          const Vec3 j = bullet::inelastic_impulse(v, n, mu, K);
+          if (!(n.dot(v) < 0.0)) {
+            EXPECT_TRUE(j.isZero(0.0)) << "a point that does not approach";
+            continue;
+          }
+          const double j_n = n.dot(j);
+          EXPECT_GT(j_n, 0.0);
+          const Vec3 j_t = j - j_n * n;
+          EXPECT_LE(j_t.norm(), (mu + 1e-12) * j_n) << "outside the cone, mu " << mu;  // round-off in j_t
+          const double gain = j.dot(v) + 0.5 * j.dot(K * j);
+          EXPECT_LE(gain, 1e-12 * 0.5 * v.squaredNorm() / point_mass) << "mass " << body_mass << ", mu " << mu;
+          // The normal part alone leaves the normal velocities equal.
+          EXPECT_NEAR(n.dot(v + K * (j_n * n)), 0.0, 1e-12 * v.norm());
+        }
+      }
+    }
+  }
+  // Against an immovable body: stop_approach's change of the point's velocity, times its mass.
+  for (const double mu : {0.0, 0.3, 5.0})
+    for (const Vec3& v : velocities) {
+      const Vec3 v_body(0.1, -0.2, 0.05);
+      const Vec3 j = bullet::inelastic_impulse(v - v_body, n, mu, Mat3::Identity() / point_mass);
+      const Vec3 dv = bullet::stop_approach(v, v_body, n, mu) - v;
+      EXPECT_LT((j - point_mass * dv).norm(), 1e-12 * point_mass * (1 + v.norm())) << "mu " << mu;
+    }
+}
+
 // A light body Bullet alone moves landing on heavier particles: a 10 g box at 1 m/s onto a free cloth
 // of 5.6 g nodes (no gravity). Each contact is an inelastic impact between a particle and the box as a
 // body of its own mass, seeing the impulses of the contacts before it; stopping every particle's
