@@ -236,12 +236,10 @@ bool BulletCollisions::admits(const CollisionContext& c, Index i, int o) const {
   return true;
 }
 
-double BulletCollisions::pinch_rank(int o) const {
+bool BulletCollisions::held_by_bullet_alone(int o) const {
   const btCollisionObject* object = m_world->getCollisionObjectArray()[o];
   const btRigidBody* rigid = btRigidBody::upcast(object);
-  if (!rigid || rigid->isStaticOrKinematicObject()) return kInfinity;
-  if (m_rigid_particles && m_rigid_particles->count(object)) return -1.0;
-  return rigid->getMass();
+  return rigid && !rigid->isStaticOrKinematicObject() && !(m_rigid_particles && m_rigid_particles->count(object));
 }
 
 int BulletCollisions::pinching_object(const CollisionContext& c, Index i, int hit, double phi_hit, const Vec3& n_hit,
@@ -258,12 +256,11 @@ int BulletCollisions::pinching_object(const CollisionContext& c, Index i, int hi
   hi.setMax(to_bullet(pushed));
   m_tree.collideTVNoStackAlloc(m_tree.m_root, btDbvtVolume::FromMM(lo, hi), m_stack, collect);
   std::sort(m_candidates.begin(), m_candidates.end());
-  const double rank = pinch_rank(hit);
   int other = -1;
   for (const int o : m_candidates) {
     if (o == hit || !admits(c, i, o)) continue;
-    const double rank_o = pinch_rank(o);
-    if (!(rank_o > rank || (rank_o == rank && o < hit))) continue;
+    const btRigidBody* rigid = btRigidBody::upcast(objects[o]);
+    if (rigid && !rigid->isStaticOrKinematicObject()) continue;  // static and kinematic objects only
     const btCollisionShape* shape = objects[o]->getCollisionShape();
     double d;
     Vec3 n;
@@ -535,17 +532,18 @@ void BulletCollisions::process(CollisionContext& c) {
     Vec3 normal;
     int hit = closest_object(c, i, phi, normal);
     if (hit < 0 || phi >= thickness) continue;
-    // Caught between a body Bullet alone moves and an object Bullet keeps it apart from (a box resting
-    // on a cloth on the ground): pushed out of the body, the particle would be pushed into the other
-    // object, and back out of it into the body at the next step, each projection a jump of up to
-    // twice the thickness (more where Bullet lets the body sink into the other for a few ticks) that
-    // the cloth's springs turn into energy: a 5 kg box landing flat on a cloth on the ground at one
-    // 1/60 s tick threw the cloth about at 1600 m/s. Bullet's own contact between the two holds them
-    // apart; the particle follows the object that outranks the other (static or kinematic; else the
-    // heavier body, or the first in the world's order) and gives the body no impulse: it is squeezed
-    // to no thickness between them, as a cloth under a weight is. Rigid-body particles are held with
-    // the particles in sinew's step and keep their contacts.
-    if (pinch_rank(hit) >= 0.0 && pinch_rank(hit) < kInfinity) {
+    // Caught between a body Bullet alone moves and a static or kinematic object (a box resting on a
+    // cloth on the ground): pushed out of the body, the particle would be pushed into the object, and
+    // back out of it into the body at the next step, each projection a jump of up to twice the
+    // thickness (more where Bullet lets the body sink into the object for a few ticks) that the
+    // cloth's springs turn into energy: a 5 kg box landing flat on a cloth on the ground at one 1/60 s
+    // tick threw the cloth about at 1600 m/s. Bullet's own contact between the two holds them apart;
+    // the particle follows the object and gives the body no impulse: it is squeezed to no thickness
+    // between them, as a cloth under a weight is. Between two dynamic bodies (a box dropped on a cloth
+    // on a dynamic table) the particle is still pushed out of the nearer: following the table, the
+    // corner and edge pass pushed the cloth's faces out of the box into it, and the cloth diverged.
+    // Rigid-body particles are held with the particles in sinew's step and keep their contacts.
+    if (held_by_bullet_alone(hit)) {
       bool move = false;
       double phi_other;
       Vec3 n_other;

@@ -132,15 +132,14 @@ class BulletCollisions final : public CollisionSource {
   int closest_object(const CollisionContext& c, Index i, double& phi, Vec3& normal) const;
   /// Whether object o may meet particle i: contact response, the pinches, ties, collision filters.
   bool admits(const CollisionContext& c, Index i, int o) const;
-  /// An object that outranks `hit` (pinch_rank) and holds particle i against it: the particle is
-  /// inside `hit` (phi_hit < 0) and within the thickness of the object, or pushed out of `hit` along
-  /// n_hit it would be within the object's thickness from the opposite side (`move`: the push is
-  /// taken first). The nearest such object, with its signed distance and normal there; -1 when none.
+  /// A static or kinematic object that holds particle i against `hit`: the particle is inside `hit`
+  /// (phi_hit < 0) and within the object's thickness, or pushed out of `hit` along n_hit it would be
+  /// within the object's thickness from the opposite side (`move`: the push is taken first). The
+  /// nearest such object, with its signed distance and normal there; -1 when none.
   int pinching_object(const CollisionContext& c, Index i, int hit, double phi_hit, const Vec3& n_hit, bool& move,
                       double& phi, Vec3& normal) const;
-  /// Which of two objects a particle caught between them follows (the higher): static and kinematic
-  /// objects infinity, a body Bullet alone moves its mass, a rigid-body particle -1 (not ranked).
-  double pinch_rank(int o) const;
+  /// A dynamic body that Bullet alone moves (not a rigid-body particle of the system).
+  bool held_by_bullet_alone(int o) const;
 
   /// Whether particle i, outside object o at t^n (x0), passed through it on its way to x1 while the
   /// object moved from m_frame_n to m_frame: the path in the object's frame sampled at no more than
