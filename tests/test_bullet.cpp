@@ -30,6 +30,18 @@ btRigidBody* add_box(BulletWorld& w, const btVector3& half, double mass, const b
   return body;
 }
 
+// A body's kinetic energy (spin in its principal axes, where its inertia is diagonal) plus its weight's
+// potential energy at g = 9.81 m/s^2 along -y.
+double body_energy(const btRigidBody* b) {
+  const Vec3 w = bullet::to_eigen(b->getAngularVelocity() * b->getCenterOfMassTransform().getBasis());
+  const Vec3 inverse = bullet::to_eigen(b->getInvInertiaDiagLocal());
+  const double m = 1.0 / static_cast<double>(b->getInvMass());
+  double e = 0.5 * m * bullet::to_eigen(b->getLinearVelocity()).squaredNorm() +
+             m * 9.81 * static_cast<double>(b->getCenterOfMassPosition().y());
+  for (int a = 0; a < 3; ++a) e += 0.5 * w[a] * w[a] / inverse[a];
+  return e;
+}
+
 scenes::ClothGridSettings small_cloth(const Vec3& origin) {
   scenes::ClothGridSettings c;
   c.nx = c.ny = 6;
@@ -1181,14 +1193,7 @@ TEST(BulletCoupling, ABoxDroppedOnAClothOnTheGroundHoldsAtOneTick) {
     c.origin = Vec3(-0.5, 0.011, -0.5);
     c.down = Vec3::UnitZ();
     scenes::add_cloth_grid(s, c);
-    auto energy = [&] {
-      const Vec3 w = bullet::to_eigen(box->getAngularVelocity() * box->getCenterOfMassTransform().getBasis());
-      const Vec3 inverse = bullet::to_eigen(box->getInvInertiaDiagLocal());
-      double e = 0.5 * k.mass * bullet::to_eigen(box->getLinearVelocity()).squaredNorm() +
-                 k.mass * 9.81 * static_cast<double>(box->getCenterOfMassPosition().y());
-      for (int a = 0; a < 3; ++a) e += 0.5 * w[a] * w[a] / inverse[a];
-      return e + s.kinetic_energy() + s.potential_energy();
-    };
+    auto energy = [&] { return body_energy(box) + s.kinetic_energy() + s.potential_energy(); };
     double e0 = 0.0, highest = 0.0;
     for (int frame = 0; frame < 240; ++frame) {
       ASSERT_NO_THROW(bw.world().stepSimulation(btScalar(1.0 / 60), 1, btScalar(1.0 / 60))) << "frame " << frame;
@@ -1224,15 +1229,6 @@ TEST(BulletCoupling, ABoxDroppedOnAClothOnADynamicTableHoldsAtFourTicks) {
     c.origin = Vec3(-0.5, 0.211, -0.5);
     c.down = Vec3::UnitZ();
     scenes::add_cloth_grid(s, c);
-    auto body_energy = [](btRigidBody* b) {
-      const Vec3 w = bullet::to_eigen(b->getAngularVelocity() * b->getCenterOfMassTransform().getBasis());
-      const Vec3 inverse = bullet::to_eigen(b->getInvInertiaDiagLocal());
-      const double m = 1.0 / static_cast<double>(b->getInvMass());
-      double e = 0.5 * m * bullet::to_eigen(b->getLinearVelocity()).squaredNorm() +
-                 m * 9.81 * static_cast<double>(b->getCenterOfMassPosition().y());
-      for (int a = 0; a < 3; ++a) e += 0.5 * w[a] * w[a] / inverse[a];
-      return e;
-    };
     auto energy = [&] { return body_energy(box) + body_energy(table) + s.kinetic_energy() + s.potential_energy(); };
     double e0 = 0.0, highest = 0.0;
     for (int frame = 0; frame < 180; ++frame) {
@@ -2100,7 +2096,9 @@ TEST(Sleeping, AClothAsleepOnTheGroundWakesForAFallingBoxThatItThenStopsAsItWoul
     Vec3 n;
     ASSERT_TRUE(bullet::signed_distance(box_a->getCollisionShape(), box_a->getCenterOfMassTransform(),
                                         s.particles().x.col(i), 1.0, phi, n));
-    if (phi < 0.0) EXPECT_LT(s.particles().x(1, i), 0.01 + 1e-6) << "particle " << i << " in the box, off the ground";
+    if (phi < 0.0) {
+      EXPECT_LT(s.particles().x(1, i), 0.01 + 1e-6) << "particle " << i << " in the box, off the ground";
+    }
   }
   EXPECT_LT(bullet::to_eigen(box_a->getLinearVelocity()).norm(), 0.05) << "stopped";
 }
