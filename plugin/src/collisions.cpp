@@ -256,17 +256,43 @@ int BulletCollisions::pinching_object(const CollisionContext& c, Index i, int hi
   hi.setMax(to_bullet(pushed));
   m_tree.collideTVNoStackAlloc(m_tree.m_root, btDbvtVolume::FromMM(lo, hi), m_stack, collect);
   std::sort(m_candidates.begin(), m_candidates.end());
+  // Whether the particle entered the body within this step (outside it at t^n): it then came in
+  // through the face n_hit, which must face the object for the object to hold it against the body.
+  const btCollisionShape* body_shape = objects[hit]->getCollisionShape();
+  double d_n;
+  Vec3 n_n;
+  const bool entered =
+      !signed_distance(body_shape, m_frame_n[static_cast<std::size_t>(hit)], c.x_n->col(i), thickness, d_n, n_n) ||
+      d_n > 0.0;
+  btDispatcher* dispatcher = m_world->getDispatcher();
+  const btBroadphaseProxy* body_proxy = objects[hit]->getBroadphaseHandle();
   int other = -1;
   for (const int o : m_candidates) {
     if (o == hit || !admits(c, i, o)) continue;
     const btRigidBody* rigid = btRigidBody::upcast(objects[o]);
     if (rigid && !rigid->isStaticOrKinematicObject()) continue;  // static and kinematic objects only
+    // Only where Bullet itself keeps the two apart: its filters, its ignore lists, contact response.
+    const btBroadphaseProxy* proxy = objects[o]->getBroadphaseHandle();
+    if (!body_proxy || !proxy || !(body_proxy->m_collisionFilterGroup & proxy->m_collisionFilterMask) ||
+        !(proxy->m_collisionFilterGroup & body_proxy->m_collisionFilterMask) ||
+        !dispatcher->needsCollision(objects[hit], objects[o]) || !dispatcher->needsResponse(objects[hit], objects[o]))
+      continue;
     const btCollisionShape* shape = objects[o]->getCollisionShape();
     double d;
     Vec3 n;
-    // Inside the body while touching the other: the body has entered the layer the particle keeps on
-    // the other (whichever of its faces is nearest, the way out is through the other).
-    if (phi_hit < 0.0 && signed_distance(shape, m_frame[o], x, thickness, d, n) && d < thickness) {
+    // Inside the body while touching the other, with the body within the thickness of the other at
+    // the particle's foot there (no room left between them): whichever of the body's faces is
+    // nearest, the way out is through the other. A particle that came in this step counts only
+    // through a face against the other (a cloth falling on a crate beside a wall is pushed out of
+    // the crate's top, not along the wall).
+    if (phi_hit < 0.0 && signed_distance(shape, m_frame[o], x, thickness, d, n) && d < thickness &&
+        (!entered || n.dot(n_hit) < -0.2)) {
+      double d_foot;
+      Vec3 n_foot;
+      const Vec3 foot = x - d * n;
+      if (!signed_distance(body_shape, m_frame[static_cast<std::size_t>(hit)], foot, thickness, d_foot, n_foot) ||
+          !(d_foot < thickness))
+        continue;
       if (other < 0 || d < phi) {
         other = o;
         phi = d;
@@ -875,7 +901,8 @@ void BulletCollisions::process_features(CollisionContext& c) {
   const Particles& particles = *c.particles;
   // Nor one with a point another object holds this step (the particle tests found it within the
   // thickness of that object): pushed off this body, it would be pushed into the other (a cloth
-  // pinched between a box and the ground); the particle tests keep it out of the nearer.
+  // pinched between a box and the ground); the particle tests keep it out of the nearer, or on the
+  // static or kinematic object where the other is a body Bullet alone moves.
   // Likewise one with a pinched node (figure 10), which its duplicates hold off this body.
   const auto held_elsewhere = [&](Index i, int o) {
     const int other = m_particle_object[static_cast<std::size_t>(i)];

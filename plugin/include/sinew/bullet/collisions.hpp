@@ -64,7 +64,9 @@ struct CollisionSettings {
 /// times objects. It projects
 /// penetrating particles out to the thickness, removes their approaching normal velocity relative to
 /// the surface with Coulomb friction on the tangential part, and hands step 4 a velocity constraint
-/// against prescribed (static, kinematic) surfaces. A dynamic body takes the opposite impulse: through
+/// against prescribed (static, kinematic) surfaces. A particle caught between a body Bullet alone moves
+/// and a static or kinematic object that Bullet keeps the body off follows the object and gives the
+/// body nothing (process()). Otherwise a dynamic body takes the opposite impulse: through
 /// its rigid-body particle when the system has one (so the step carries it, and Bullet receives it
 /// with the rest of the step's momentum), else summed per body and handed to Bullet once, by
 /// apply_pending_impulses() after the step.
@@ -119,6 +121,10 @@ class BulletCollisions final : public CollisionSource {
   /// object (the pinched node itself, which its duplicates hold). The coupling sets them every tick.
   using ObjectPairs = std::vector<std::pair<Index, const btCollisionObject*>>;
   void set_pinches(const ObjectPairs& only, const ObjectPairs& passes);
+  /// The pair inverse mass (body_point_inverse_mass) of a dynamic body at `arm` (from its centre of
+  /// mass) as Bullet has it: its locks, and its world inverse inertia with rows scaled by the angular
+  /// factor, as applyTorqueImpulse applies them.
+  static Mat3 bullet_point_inverse_mass(const btRigidBody* body, const btVector3& arm);
   /// Whether the pinches let particle i meet object o.
   bool pinch_admits(Index i, const btCollisionObject* o) const;
 
@@ -202,8 +208,6 @@ class BulletCollisions final : public CollisionSource {
   /// What the impulses held for body (applied after the step) add to its velocity at `arm` (from its
   /// centre of mass), as Bullet's applyCentralImpulse and applyTorqueImpulse will.
   Vec3 pending_velocity(const btRigidBody* body, const btVector3& arm) const;
-  /// The pair inverse mass (body_point_inverse_mass) of a dynamic body at `arm` as Bullet has it.
-  static Mat3 bullet_point_inverse_mass(const btRigidBody* body, const btVector3& arm);
   std::vector<Pending> m_pending;
   std::vector<DynamicContact> m_dynamic_contacts;
   // process_features: the surfaces' triangles and edges binned by their boxes over the step, and each

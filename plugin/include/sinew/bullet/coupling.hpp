@@ -97,10 +97,11 @@ struct CouplingSettings {
   /// it by binding springs of `pinch_stiffness`; the node hangs between them, held by their friction.
   /// Released (the duplicates removed) when either object is more than four thicknesses away from the
   /// node, or a duplicate is. Off (the default): the particle is pushed out of the nearer object,
-  /// which may push it into the other. Not on by default: on the curtain, whose thin rings bunch on
-  /// the rod at up to 2 m/s, nodes between neighbouring rings were pinched and their duplicates
-  /// struck off them (600 frames: deepest penetration 11 cm instead of 3.4, binding-spring stretch
-  /// 13.5 cm instead of 2.8).
+  /// which may push it into the other; caught between a body Bullet alone moves and a static or
+  /// kinematic object, it follows the object instead (BulletCollisions::process). Not on by default: on the curtain,
+  /// whose thin rings bunch on the rod at up to 2 m/s, nodes between neighbouring rings were pinched and their
+  /// duplicates struck off them (600 frames: deepest penetration 11 cm instead of 3.4, binding-spring stretch 13.5 cm
+  /// instead of 2.8).
   bool pinching = false;
   /// [N/m] The duplicates' binding springs. Their pull presses the duplicates on and sets the grip
   /// (with `friction`); stiffer ones leave each step's end velocity further from the motion (friction
