@@ -55,6 +55,36 @@ TEST(CurtainDemo, RingsStayOnTheRodAndTheClothOnTheRings) {
   EXPECT_TRUE(scene->system().particles().x.allFinite());
 }
 
+// The main demo at Bullet's default tick, one 1/60 s tick a frame (a user's stepSimulation(1/60) with
+// no substeps), through a whole close (the handle reaches x = -0.35 at frame 240) and most of the
+// reopening. The rings bunch up as the curtain closes; their contacts with each other and with the
+// rod are held in sinew's step, their normals all but perpendicular to the rod. The bunched rings'
+// common slide along the rod was held too, at 2e-7 of the rows' strength (round-off): three rings
+// stood still while the handle's spring stretched to 1.08 m. Such directions are left free
+// (kWeakJointDirection in coupling/src/constraints.cpp).
+TEST(CurtainDemo, HoldsAtOneTickAFrame) {
+  auto scene = make_bullet_scene("curtain");
+  const auto& bodies = scene->bullet().bodies();  // rod, ten rings, handle, two finials
+  double stretch = 0.0, last_ring_least = kInfinity, off_axis = 0.0;
+  for (int f = 0; f < 400; ++f) {
+    scene->advance(1.0 / 60, 1);
+    stretch = std::max(stretch, scene->measure().binding_spring_stretch);
+    for (int r = 1; r <= 10; ++r) {
+      const Vec3 c = position(bodies[static_cast<std::size_t>(r)]);
+      off_axis = std::max(off_axis, std::hypot(c.y() - 2.1, c.z()));
+    }
+    last_ring_least = std::min(last_ring_least, position(bodies[10]).x());
+  }
+  // Each ring still around the rod: its centre within the hole's clearance (inner radius 3.4 cm less
+  // the rod's 1.5) plus at most half the ring's tube (6 mm) of overlap with the rod, which a 1/60 s
+  // tick's contacts allow (2 mm at most measured; at 4 ticks the other test's bound is 2 mm).
+  EXPECT_LT(off_axis, 0.034 - 0.015 + 0.006);
+  EXPECT_LT(stretch, 0.05);  // 2.8 cm at 4 ticks a frame (RingsStayOnTheRodAndTheClothOnTheRings)
+  // The handle went to x = -0.35: the last ring, 5 cm below and beside it, followed to within 15 cm.
+  EXPECT_LT(last_ring_least, -0.2);
+  EXPECT_TRUE(scene->system().particles().x.allFinite());
+}
+
 // What keeps the main demo real-time (.ci/demo times it; tests never time): four Bullet ticks a
 // 1/60 s frame and ONE sinew step a tick, since implicit springs and bending leave no stable-step
 // limit, each solve in a few dozen CG iterations.
@@ -916,12 +946,14 @@ TEST(StalkDemo, TheFiberHoldsTheStalkUpUntilItBreaks) {
 // turn_work_rate). Without them the fallen stalk's energy rose 61% above the break's within 200
 // frames and it was still thrashing (velocity RMS 0.57 m/s); with them it settles (0.008) and rises
 // by 4.3% at most (the falling stalk meeting the pot and the ground within one step, left for the
-// contact work).
+// contact work). Before the break it rises by 0.64% as it settles from its drawn shape (6 mJ): its
+// pot stands on two or three contact points at one tick and rocks about the line through two, each
+// new point met a tick late. Until kWeakJointDirection round-off held that tilt (+0.2% then).
 TEST(StalkDemo, AtOneTickAFrameTheFallenStalkSettles) {
   auto scene = make_bullet_scene("stalk");
   for (int f = 0; f < 200; ++f) scene->advance(1.0 / 60, 1);
   const std::string fields = scene->json_fields();
-  EXPECT_LE(json_field(fields, "energy_max_before_break"), 1.003 * json_field(fields, "energy_first_frame"));
+  EXPECT_LE(json_field(fields, "energy_max_before_break"), 1.007 * json_field(fields, "energy_first_frame"));
   EXPECT_LE(json_field(fields, "energy_max_after_break"), 1.06 * json_field(fields, "energy_at_break"));
   EXPECT_LT(scene->measure().velocity_rms, 0.05);
   EXPECT_LT(json_field(fields, "tip_height_lowest_after"), json_field(fields, "tip_height_before_break") - 0.1);
