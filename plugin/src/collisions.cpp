@@ -243,7 +243,7 @@ bool BulletCollisions::held_by_bullet_alone(int o) const {
 }
 
 int BulletCollisions::pinching_object(const CollisionContext& c, Index i, int hit, double phi_hit, const Vec3& n_hit,
-                                      bool& move, double& phi, Vec3& normal) const {
+                                      bool entered, bool& move, double& phi, Vec3& normal) const {
   const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
   const double thickness = m_settings.thickness;
   const Vec3 x = c.x->col(i);
@@ -256,25 +256,21 @@ int BulletCollisions::pinching_object(const CollisionContext& c, Index i, int hi
   hi.setMax(to_bullet(pushed));
   m_tree.collideTVNoStackAlloc(m_tree.m_root, btDbvtVolume::FromMM(lo, hi), m_stack, collect);
   std::sort(m_candidates.begin(), m_candidates.end());
-  // Whether the particle entered the body within this step (outside it at t^n): it then came in
-  // through the face n_hit, which must face the object for the object to hold it against the body.
+  // A particle that entered the body within this step came in through the face n_hit, which must
+  // face the object for the object to hold it against the body.
   const btCollisionShape* body_shape = objects[hit]->getCollisionShape();
-  double d_n;
-  Vec3 n_n;
-  const bool entered =
-      !signed_distance(body_shape, m_frame_n[static_cast<std::size_t>(hit)], c.x_n->col(i), thickness, d_n, n_n) ||
-      d_n > 0.0;
   btDispatcher* dispatcher = m_world->getDispatcher();
-  const btBroadphaseProxy* body_proxy = objects[hit]->getBroadphaseHandle();
+  btOverlappingPairCache* pairs = m_world->getPairCache();
+  btBroadphaseProxy* body_proxy = objects[hit]->getBroadphaseHandle();
   int other = -1;
   for (const int o : m_candidates) {
     if (o == hit || !admits(c, i, o)) continue;
     const btRigidBody* rigid = btRigidBody::upcast(objects[o]);
     if (rigid && !rigid->isStaticOrKinematicObject()) continue;  // static and kinematic objects only
-    // Only where Bullet itself keeps the two apart: its filters, its ignore lists, contact response.
-    const btBroadphaseProxy* proxy = objects[o]->getBroadphaseHandle();
-    if (!body_proxy || !proxy || !(body_proxy->m_collisionFilterGroup & proxy->m_collisionFilterMask) ||
-        !(proxy->m_collisionFilterGroup & body_proxy->m_collisionFilterMask) ||
+    // Only where Bullet itself keeps the two apart: its filters (groups and masks, or the
+    // application's overlap filter callback), its ignore lists, contact response.
+    btBroadphaseProxy* proxy = objects[o]->getBroadphaseHandle();
+    if (!body_proxy || !proxy || !pairs->needsBroadphaseCollision(body_proxy, proxy) ||
         !dispatcher->needsCollision(objects[hit], objects[o]) || !dispatcher->needsResponse(objects[hit], objects[o]))
       continue;
     const btCollisionShape* shape = objects[o]->getCollisionShape();
@@ -313,7 +309,8 @@ int BulletCollisions::pinching_object(const CollisionContext& c, Index i, int hi
   return other;
 }
 
-int BulletCollisions::closest_object(const CollisionContext& c, Index i, double& phi, Vec3& normal) const {
+int BulletCollisions::closest_object(const CollisionContext& c, Index i, double& phi, Vec3& normal,
+                                     bool& entered) const {
   const btCollisionObjectArray& objects = m_world->getCollisionObjectArray();
   const double thickness = m_settings.thickness;
   const Vectors3& x = *c.x;
@@ -321,6 +318,7 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
   int hit = -1;
   phi = kInfinity;
   normal = Vec3::Zero();
+  entered = false;
   // The objects whose swept box meets the particle's path over the step, taken in the world's order.
   CollectLeaves collect;
   collect.out = &m_candidates;
@@ -336,13 +334,16 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
     double d;
     Vec3 n;
     if (!signed_distance(objects[o]->getCollisionShape(), m_frame[o], x.col(i), thickness, d, n)) continue;
+    bool came_in = false;
     if (d < 0.0 && d < phi) {
       // Entered this step: push back out through the side the particle came from, so a thin body
       // is not crossed by projecting to its far face.
       double d_n;
       Vec3 n_n;
-      if (signed_distance(objects[o]->getCollisionShape(), m_frame_n[o], c.x_n->col(i), thickness, d_n, n_n) &&
-          d_n > 0.0) {
+      const bool known =
+          signed_distance(objects[o]->getCollisionShape(), m_frame_n[o], c.x_n->col(i), thickness, d_n, n_n);
+      came_in = !known || d_n > 0.0;
+      if (known && d_n > 0.0) {
         n = n_n;
         d = d_n + n_n.dot(x.col(i) - c.x_n->col(i));
       }
@@ -354,12 +355,14 @@ int BulletCollisions::closest_object(const CollisionContext& c, Index i, double&
       if (crossed(o, c.x_n->col(i), x.col(i), d_c, n_c)) {
         d = d_c;
         n = n_c;
+        came_in = true;
       }
     }
     if (d < phi) {
       phi = d;
       normal = n;
       hit = o;
+      entered = came_in;
     }
   }
   return hit;
@@ -556,7 +559,8 @@ void BulletCollisions::process(CollisionContext& c) {
     const bool synchronized = kind == ParticleKind::soft_synchronized && c.synchronize(i);
     double phi;
     Vec3 normal;
-    int hit = closest_object(c, i, phi, normal);
+    bool entered;
+    int hit = closest_object(c, i, phi, normal, entered);
     if (hit < 0 || phi >= thickness) continue;
     // Caught between a body Bullet alone moves and a static or kinematic object (a box resting on a
     // cloth on the ground): pushed out of the body, the particle would be pushed into the object, and
@@ -573,7 +577,7 @@ void BulletCollisions::process(CollisionContext& c) {
       bool move = false;
       double phi_other;
       Vec3 n_other;
-      const int other = pinching_object(c, i, hit, phi, normal, move, phi_other, n_other);
+      const int other = pinching_object(c, i, hit, phi, normal, entered, move, phi_other, n_other);
       if (other >= 0) {
         if (move) x.col(i) += (thickness - phi) * normal;
         hit = other;

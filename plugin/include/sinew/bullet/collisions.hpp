@@ -134,16 +134,18 @@ class BulletCollisions final : public CollisionSource {
 
  private:
   /// The object nearest to x within reach whose filter admits particle i: index, signed distance and
-  /// normal (taken from the side the particle came from when it entered this step). -1 when none.
-  int closest_object(const CollisionContext& c, Index i, double& phi, Vec3& normal) const;
+  /// normal (taken from the side the particle came from when it entered this step), and whether it
+  /// came into the object within this step. -1 when none.
+  int closest_object(const CollisionContext& c, Index i, double& phi, Vec3& normal, bool& entered) const;
   /// Whether object o may meet particle i: contact response, the pinches, ties, collision filters.
   bool admits(const CollisionContext& c, Index i, int o) const;
   /// A static or kinematic object that holds particle i against `hit`: the particle is inside `hit`
   /// (phi_hit < 0) and within the object's thickness, or pushed out of `hit` along n_hit it would be
-  /// within the object's thickness from the opposite side (`move`: the push is taken first). The
-  /// nearest such object, with its signed distance and normal there; -1 when none.
-  int pinching_object(const CollisionContext& c, Index i, int hit, double phi_hit, const Vec3& n_hit, bool& move,
-                      double& phi, Vec3& normal) const;
+  /// within the object's thickness from the opposite side (`move`: the push is taken first).
+  /// `entered`: the particle came into `hit` within this step (closest_object). The nearest such
+  /// object, with its signed distance and normal there; -1 when none.
+  int pinching_object(const CollisionContext& c, Index i, int hit, double phi_hit, const Vec3& n_hit, bool entered,
+                      bool& move, double& phi, Vec3& normal) const;
   /// A dynamic body that Bullet alone moves (not a rigid-body particle of the system).
   bool held_by_bullet_alone(int o) const;
 
