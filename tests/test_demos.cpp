@@ -47,7 +47,7 @@ TEST(CurtainDemo, RingsStayOnTheRodAndTheClothOnTheRings) {
   }
   EXPECT_LT(drift, 1e-9);
   EXPECT_LT(last_ring_least, last_ring_start - 0.2);  // drawn toward the handle
-  // The handle's spring (2e3 N/m) carries the draw: 2.8 cm at most; the deepest a node went into a
+  // The handle's spring (2e3 N/m) carries the draw: 1.3 cm at most; the deepest a node went into a
   // ring or the rod before step 3 put it back: 3.4 cm (nodes pinched between rings and struck off
   // their duplicates reached 11 cm).
   EXPECT_LT(stretch, 0.05);
@@ -59,7 +59,7 @@ TEST(CurtainDemo, RingsStayOnTheRodAndTheClothOnTheRings) {
 // no substeps), through a whole close (the handle reaches x = -0.35 at frame 240) and most of the
 // reopening. The rings bunch up as the curtain closes; their contacts with each other and with the
 // rod are held in sinew's step, their normals all but perpendicular to the rod. The bunched rings'
-// common slide along the rod was held too, at 2e-7 of the rows' strength (round-off): three rings
+// common slide along the rod was held too, at 2e-7 to 2e-6 of the rows' strength: three rings
 // stood still while the handle's spring stretched to 1.08 m. Such directions are left free
 // (kWeakJointDirection in coupling/src/constraints.cpp).
 TEST(CurtainDemo, HoldsAtOneTickAFrame) {
@@ -72,6 +72,7 @@ TEST(CurtainDemo, HoldsAtOneTickAFrame) {
     for (int r = 1; r <= 10; ++r) {
       const Vec3 c = position(bodies[static_cast<std::size_t>(r)]);
       off_axis = std::max(off_axis, std::hypot(c.y() - 2.1, c.z()));
+      ASSERT_LT(std::abs(c.x()), 1.3) << "ring " << r << " left the rod at frame " << f;
     }
     last_ring_least = std::min(last_ring_least, position(bodies[10]).x());
   }
@@ -79,7 +80,7 @@ TEST(CurtainDemo, HoldsAtOneTickAFrame) {
   // the rod's 1.5) plus at most half the ring's tube (6 mm) of overlap with the rod, which a 1/60 s
   // tick's contacts allow (2 mm at most measured; at 4 ticks the other test's bound is 2 mm).
   EXPECT_LT(off_axis, 0.034 - 0.015 + 0.006);
-  EXPECT_LT(stretch, 0.05);  // 2.8 cm at 4 ticks a frame (RingsStayOnTheRodAndTheClothOnTheRings)
+  EXPECT_LT(stretch, 0.05);  // 1.2 cm measured; 1.3 cm at 4 ticks a frame
   // The handle went to x = -0.35: the last ring, 5 cm below and beside it, followed to within 15 cm.
   EXPECT_LT(last_ring_least, -0.2);
   EXPECT_TRUE(scene->system().particles().x.allFinite());
@@ -948,7 +949,9 @@ TEST(StalkDemo, TheFiberHoldsTheStalkUpUntilItBreaks) {
 // by 4.3% at most (the falling stalk meeting the pot and the ground within one step, left for the
 // contact work). Before the break it rises by 0.64% as it settles from its drawn shape (6 mJ): its
 // pot stands on two or three contact points at one tick and rocks about the line through two, each
-// new point met a tick late. Until kWeakJointDirection round-off held that tilt (+0.2% then).
+// new point met a tick late. Before kWeakJointDirection, round-off held that tilt and the rise was
+// 0.2%: the bound was loosened from 0.3% to 0.7% to accept this regression (a gain in a passive
+// scene, left open).
 TEST(StalkDemo, AtOneTickAFrameTheFallenStalkSettles) {
   auto scene = make_bullet_scene("stalk");
   for (int f = 0; f < 200; ++f) scene->advance(1.0 / 60, 1);

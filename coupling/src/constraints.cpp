@@ -29,12 +29,16 @@ namespace {
 constexpr double kWeakRow = 1e-2;
 // A joint group's rows hold each direction of its bodies' twists with a strength, its singular value;
 // held as an equality, a direction of strength sigma carries multipliers of (force along it) / sigma.
-// Directions below 1e-5 of the strongest are left free: they are round-off, or normals a hair off
-// true, not a constraint. Curtain rings bunched on their rod, their contact normals with the rod and
-// with each other all but perpendicular to it, had their common slide along the rod held at 2e-7 to
-// 2e-6 of the rows' strength: at one 1/60 s tick three of them stood still while the handle's spring
-// pulled 540 N (stretched 1.08 m). A pot standing on two contact points had its tilt about the line
-// through them held at 1e-9 to 3e-8, by round-off alone.
+// In a group with contacts, directions below 1e-5 of the strongest are left free: they are
+// round-off, or contact normals a hair off true, not a constraint. Curtain rings bunched on their
+// rod, their contact normals with the rod and with each other all but perpendicular to it, had their
+// common slide along the rod held at 2e-7 to 2e-6 of the rows' strength: at one 1/60 s tick three of
+// them stood still while the handle's spring pulled 540 N (stretched 1.08 m). A pot standing on two
+// contact points had its tilt about the line through them held at 1e-9 to 3e-8, by round-off alone.
+// Groups of joint rows alone keep 1e-10 (kNullJointDirection): a twist mixes m/s and rad/s, so a
+// hinge whose pivot is L from its body's centre holds the swing off its axis at about 1/L^2 of its
+// strongest direction, below 1e-5 for L above 3 m in a world measured in centimetres.
+constexpr double kNullJointDirection = 1e-10;
 constexpr double kWeakJointDirection = 1e-5;
 }  // namespace
 
@@ -374,9 +378,12 @@ void Constraints::prepare_joints(const std::vector<JointRow>& rows, const RigidB
       agree_contact_targets(group, rows, tangent_of);
     const VectorXd& sigma = group.svd.singularValues();
     Index rank = 0;
-    // Directions the rows hold less than kWeakJointDirection as firmly as their strongest are left
-    // free (see its comment).
-    while (rank < sigma.size() && sigma[rank] > kWeakJointDirection * sigma[0]) ++rank;
+    // Directions the rows hold less than this as firmly as their strongest are left free (see
+    // kWeakJointDirection).
+    const bool contacts =
+        std::any_of(group.rows.begin(), group.rows.end(), [&](Index r) { return rows[r].unilateral; });
+    const double weakest = contacts ? kWeakJointDirection : kNullJointDirection;
+    while (rank < sigma.size() && sigma[rank] > weakest * sigma[0]) ++rank;
     largest_rank = std::max(largest_rank, rank);
     group.basis = group.svd.matrixV().leftCols(rank);
     group.coefficients.resize(rank);
